@@ -1,0 +1,370 @@
+"""Public decoding API: whole files, prefixes, and an incremental stream decoder.
+
+``decode`` reads a complete file or a prefix of one; ``inspect`` reads only the header (and the
+metadata section) to describe a file; :class:`StreamDecoder` is fed bytes as they arrive and hands back
+each layer as soon as its last byte is in, which is what a streaming viewer needs.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import zlib
+from dataclasses import dataclass, field
+from typing import BinaryIO, Union
+
+from spcodec.cloud import GaussianCloud
+from spcodec.codecs import Gunzipped, gunzip, is_gzip, read_gzip_layer_ends
+from spcodec.container import FIXED_HEADER_SIZE, GZIP_MAGIC, MAGIC, Codec, SectionType
+from spcodec.errors import FormatError, LimitError, TruncatedError, UsageError
+from spcodec.limits import DEFAULT_LIMITS, Limits
+
+from .header import Header, header_bytes_needed, read_header
+from .layers import decode_patch_layer, decode_sketch_layer, read_codebooks, section_payload
+
+Source = Union[str, os.PathLike, bytes, bytearray, memoryview, BinaryIO]
+
+
+@dataclass
+class DecodedLayer:
+    """One decoded layer."""
+
+    index: int
+    kind: str
+    cloud: GaussianCloud
+    end_offset: int
+
+
+@dataclass
+class DecodeResult:
+    """What :func:`decode_layers` returns: the layers, and the header they came from."""
+
+    header: Header
+    layers: list[DecodedLayer]
+    complete: bool
+    """True when every layer the file declares was decoded."""
+
+    @property
+    def cloud(self) -> GaussianCloud:
+        """All decoded layers concatenated (layer 0 first)."""
+        return GaussianCloud.concat([layer.cloud for layer in self.layers], self.header.sh_degree)
+
+
+class _LayerDecoder:
+    """Decodes layers of one file in order, keeping the codebooks that layer 1 carries."""
+
+    def __init__(self, header: Header, limits: Limits) -> None:
+        self.header, self.limits, self.codebooks = header, limits, None
+
+    def decode(self, data: bytes | memoryview, index: int) -> DecodedLayer:
+        layer = self.header.layers[index]
+        if index == 0:
+            cloud = decode_sketch_layer(data, self.header, self.limits)
+        else:
+            if self.codebooks is None:
+                self.codebooks = read_codebooks(data, self.header)
+            cloud = decode_patch_layer(data, self.header, index, self.codebooks)
+        return DecodedLayer(index, layer.kind.name.lower(), cloud, layer.end_offset)
+
+
+# ------------------------------------------------------------------------------ whole files
+def decode(source: Source, max_layer: int | None = None,
+           limits: Limits | None = None) -> GaussianCloud:
+    """Decode a file (path, bytes or binary file object) or a prefix of one into Gaussians.
+
+    ``max_layer=k`` decodes layers 0..k and needs only the bytes up to that layer's end. With
+    ``max_layer=None`` every layer is decoded; data that ends exactly at a layer boundary decodes to
+    the layers before it (the prefix property, [R-11]), data that ends anywhere else raises
+    :class:`~spcodec.TruncatedError`.
+    """
+    return decode_layers(source, max_layer, limits).cloud
+
+
+def decode_layers(source: Source, max_layer: int | None = None,
+                  limits: Limits | None = None) -> DecodeResult:
+    """Like :func:`decode`, but keeps the layers apart and returns the parsed header."""
+    limits = limits or DEFAULT_LIMITS
+    if max_layer is not None and max_layer < 0:
+        raise UsageError(f"max_layer must be >= 0, got {max_layer}")
+    data, gz = _unwrap(read_source(source, limits), limits)
+    header = read_header(data, limits)
+    last = _last_decodable_layer(header, len(data), max_layer)
+    decoder = _LayerDecoder(header, limits)
+    layers = [decoder.decode(data, k) for k in range(last + 1)]
+    return DecodeResult(header, layers, last == len(header.layers) - 1)
+
+
+def _last_decodable_layer(header: Header, available: int, max_layer: int | None) -> int:
+    """Index of the last layer to decode from ``available`` bytes ([R-11], [R-12])."""
+    if available > header.file_size:
+        raise FormatError(f"{available - header.file_size} bytes follow the last section",
+                          "trailing-data")
+    last = len(header.layers) - 1
+    target = last if max_layer is None else min(max_layer, last)
+    if available >= header.layers[target].end_offset:
+        return target
+    if max_layer is None:
+        for k in range(last - 1, -1, -1):
+            if header.layers[k].end_offset == available:
+                return k
+    raise TruncatedError(f"the data ends at byte {available}, inside layer "
+                         f"{_layer_at(header, available)} (layer boundaries: "
+                         f"{[layer.end_offset for layer in header.layers]})")
+
+
+def _layer_at(header: Header, offset: int) -> int:
+    for layer in header.layers:
+        if offset < layer.end_offset:
+            return layer.index
+    return len(header.layers) - 1
+
+
+def read_source(source: Source, limits: Limits) -> bytes | memoryview:
+    """The bytes of a path, a bytes-like object or a binary file, refusing oversized inputs."""
+    if isinstance(source, (bytes, bytearray, memoryview)):
+        return source
+    if isinstance(source, (str, os.PathLike)):
+        size = os.path.getsize(source)
+        limits.check("input file size", size, limits.max_file_bytes)
+        with open(source, "rb") as fh:
+            return fh.read()
+    if hasattr(source, "read"):
+        data = source.read(limits.max_file_bytes + 1)
+        limits.check("input size", len(data), limits.max_file_bytes)
+        return data
+    raise UsageError(f"cannot decode from a {type(source).__name__}; pass a path, bytes or a "
+                     f"binary file")
+
+
+def _unwrap(data: bytes | memoryview, limits: Limits) -> tuple[bytes | memoryview, Gunzipped | None]:
+    if is_gzip(data):
+        gz = gunzip(data, limits.max_file_bytes)
+        return gz.inner, gz
+    if len(data) < 2 and GZIP_MAGIC.startswith(bytes(data)) and len(data):
+        raise TruncatedError("the data ends inside the gzip header")
+    return data, None
+
+
+# ------------------------------------------------------------------------------------ inspect
+@dataclass
+class FileInfo:
+    """A description of a file built from its header (and metadata section)."""
+
+    header: Header
+    gzip: bool
+    stored_size: int
+    """Size of what was read: the whole file, or the prefix that was available."""
+    gzip_layer_ends: list[int] | None = None
+    metadata: dict | None = None
+    metadata_error: str | None = None
+
+    def to_json(self) -> dict:
+        """The ``spcodec info --json`` document (see the spec's annex on ``info``)."""
+        h = self.header
+        layers = []
+        for layer in h.layers:
+            entry = {"index": layer.index, "kind": layer.kind.name.lower(),
+                     "gaussians": layer.gaussian_count, "end_offset": layer.end_offset}
+            if self.gzip:
+                entry["inner_end_offset"] = layer.end_offset
+                entry["end_offset"] = (self.gzip_layer_ends[layer.index]
+                                       if self.gzip_layer_ends else None)
+            layers.append(entry)
+        return {
+            "version": f"{h.version[0]}.{h.version[1]}",
+            "gaussians": h.gaussian_count,
+            "sh_degree": h.sh_degree,
+            "file_size": h.file_size,
+            "header_size": h.header_size,
+            "gzip": self.gzip,
+            "stored_size": self.stored_size,
+            "sections": [
+                {"index": s.index, "type": s.type_name, "type_id": s.type,
+                 "codec": _codec_name(s.codec), "layer": s.layer, "offset": s.offset,
+                 "length": s.stored_length, "raw_length": s.raw_length,
+                 "crc32": f"{s.crc32:08x}", "required": s.required}
+                for s in h.sections
+            ],
+            "layers": layers,
+            "metadata": self.metadata,
+        }
+
+
+def _codec_name(codec: int) -> str:
+    try:
+        return Codec(codec).name.lower()
+    except ValueError:
+        return f"unknown-{codec}"
+
+
+def inspect(source: Source, limits: Limits | None = None) -> FileInfo:
+    """Describe a file from its header; reads only the header and metadata of a path."""
+    limits = limits or DEFAULT_LIMITS
+    if isinstance(source, (str, os.PathLike)):
+        data = _read_header_prefix(source, limits)
+        stored = os.path.getsize(source)
+    else:
+        data = read_source(source, limits)
+        stored = len(data)
+    wrapped = is_gzip(data)
+    inner, _ = _unwrap(data, limits)
+    header = read_header(inner, limits)
+    info = FileInfo(header, wrapped, stored, read_gzip_layer_ends(data) if wrapped else None)
+    meta = header.layers[0].section(SectionType.METADATA)
+    if meta is not None and len(inner) >= meta.end:
+        try:
+            raw = section_payload(inner, meta)
+            info.metadata = parse_metadata(raw)
+        except FormatError as exc:
+            info.metadata_error = str(exc)
+    return info
+
+
+def parse_metadata(raw: bytes) -> dict:
+    """The metadata section's JSON object ([R-70])."""
+    try:
+        value = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise FormatError(f"metadata is not UTF-8 JSON ({exc.__class__.__name__})",
+                          "bad-metadata") from None
+    if not isinstance(value, dict):
+        raise FormatError("metadata is not a JSON object", "bad-metadata")
+    return value
+
+
+def _read_header_prefix(path: str | os.PathLike, limits: Limits) -> bytes:
+    """Read growing prefixes of a file until the header block and metadata section are inside."""
+    size = os.path.getsize(path)
+    want = 1 << 16
+    with open(path, "rb") as fh:
+        while True:
+            fh.seek(0)
+            data = fh.read(min(want, size))
+            if len(data) >= size:
+                return data
+            inner = gunzip(data, limits.max_file_bytes).inner if is_gzip(data) else data
+            need = header_bytes_needed(inner)
+            if need is not None and need <= len(inner):
+                try:
+                    header = read_header(inner, limits)
+                except FormatError:
+                    return data  # let inspect() raise the precise error on this prefix
+                meta = header.layers[0].section(SectionType.METADATA)
+                if meta is None or meta.end <= len(inner):
+                    return data
+                need = meta.end
+            if need is not None:
+                limits.check("header block", need, limits.max_file_bytes)
+            want *= 4
+
+
+# ------------------------------------------------------------------------------ streaming
+@dataclass
+class StreamDecoder:
+    """Incremental decoder: ``feed`` bytes as they arrive, get layers as they complete.
+
+    >>> dec = StreamDecoder()
+    >>> for chunk in chunks:                      # doctest: +SKIP
+    ...     for layer in dec.feed(chunk):
+    ...         show(layer.cloud)
+    >>> dec.close()                                # doctest: +SKIP
+
+    gzip-wrapped input is inflated on the fly. ``close()`` raises :class:`TruncatedError` when the
+    data stopped inside a layer (stopping at a layer boundary is a valid prefix).
+    """
+
+    limits: Limits = field(default_factory=lambda: DEFAULT_LIMITS)
+    max_layer: int | None = None
+    header: Header | None = None
+    _buffer: bytearray = field(default_factory=bytearray)
+    _inflater: object = None
+    _started: bool = False
+    _next_layer: int = 0
+    _decoder: _LayerDecoder | None = None
+    _raw_seen: int = 0
+
+    def feed(self, chunk: bytes) -> list[DecodedLayer]:
+        """Add bytes; return the layers completed by them (possibly none)."""
+        self._raw_seen += len(chunk)
+        if not self._started:
+            self._buffer += chunk
+            if len(self._buffer) < 2:
+                return []
+            self._started = True
+            pending, self._buffer = bytes(self._buffer), bytearray()
+            if pending[:2] == GZIP_MAGIC:
+                self._inflater = zlib.decompressobj(wbits=31)
+            chunk = pending
+        self._append(chunk)
+        return self._drain()
+
+    def _append(self, chunk: bytes) -> None:
+        if self._inflater is None:
+            self._buffer += chunk
+        else:
+            room = self.limits.max_file_bytes + 1 - len(self._buffer)
+            try:
+                out = self._inflater.decompress(chunk, room)
+            except zlib.error as exc:
+                raise FormatError(f"gzip wrapper is corrupt ({exc})", "bad-gzip") from None
+            if self._inflater.unconsumed_tail:
+                raise LimitError("gzip wrapper inflates past the file size limit")
+            if self._inflater.eof and self._inflater.unused_data:
+                raise FormatError("bytes follow the gzip member", "trailing-data")
+            self._buffer += out
+        self.limits.check("input size", len(self._buffer), self.limits.max_file_bytes)
+
+    def _drain(self) -> list[DecodedLayer]:
+        if self.header is None:
+            need = header_bytes_needed(self._buffer)
+            if need is None:
+                if len(self._buffer) >= len(MAGIC) and bytes(self._buffer[:len(MAGIC)]) != MAGIC:
+                    raise FormatError("not an spcodec file (bad magic)", "bad-magic")
+                return []
+            if len(self._buffer) < need:
+                _check_fixed_header(self._buffer, self.limits)
+                return []
+            self.header = read_header(self._buffer, self.limits)
+            self._decoder = _LayerDecoder(self.header, self.limits)
+        if len(self._buffer) > self.header.file_size:
+            raise FormatError("bytes follow the last section", "trailing-data")
+        done = []
+        last = len(self.header.layers) - 1 if self.max_layer is None else \
+            min(self.max_layer, len(self.header.layers) - 1)
+        view = memoryview(self._buffer)
+        try:
+            while self._next_layer <= last and \
+                    len(self._buffer) >= self.header.layers[self._next_layer].end_offset:
+                done.append(self._decoder.decode(view, self._next_layer))
+                self._next_layer += 1
+        finally:
+            view.release()
+        return done
+
+    @property
+    def complete(self) -> bool:
+        """True when every requested layer has been returned."""
+        if self.header is None:
+            return False
+        wanted = len(self.header.layers) if self.max_layer is None else \
+            min(self.max_layer + 1, len(self.header.layers))
+        return self._next_layer >= wanted
+
+    def close(self) -> None:
+        """Declare the end of the data; raise if it stopped inside the header or a layer."""
+        if self.header is None:
+            raise TruncatedError("the data ends before the header block is complete")
+        if self.complete:
+            return
+        boundary = {layer.end_offset for layer in self.header.layers}
+        if len(self._buffer) not in boundary:
+            raise TruncatedError(f"the data ends at byte {len(self._buffer)}, inside layer "
+                                 f"{self._next_layer}")
+
+
+def _check_fixed_header(buffer: bytearray, limits: Limits) -> None:
+    """Validate the fixed header early, so a hostile header_size is refused before we wait for it."""
+    try:
+        read_header(bytes(buffer[:FIXED_HEADER_SIZE]), limits)
+    except TruncatedError:
+        pass

@@ -1,0 +1,191 @@
+"""Turning one layer's sections into Gaussians (spec decoding steps 6-9).
+
+Every section is CRC-checked on its stored bytes before it reaches a decompressor, and inflated into
+exactly its declared raw length; every count read from a payload is checked against the payload's
+own length before an array is sized from it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from spcodec.attributes import (
+    PatchAttribute, SketchAttribute, decode_opacity, decode_rotation,
+)
+from spcodec.cloud import SH_REST_COUNTS, GaussianCloud
+from spcodec.codecs import crc32, decompress
+from spcodec.container import SH_REST_ABSENT, SectionType
+from spcodec.errors import ChecksumError, FormatError
+from spcodec.limits import Limits
+from spcodec.polynomial import features, monomial_count, normalize_positions
+from spcodec.sections import (
+    Codebook, parse_codebooks, parse_indices, parse_positions, parse_sketch, read_coefficients,
+)
+
+from .header import Header, Layer, Section
+
+_ROWS_PER_CHUNK = 1 << 15
+
+
+def section_payload(data: bytes | memoryview, section: Section) -> bytes:
+    """CRC-check and inflate one section ([R-7], [R-24])."""
+    stored = memoryview(data)[section.offset:section.end]
+    if len(stored) != section.stored_length:
+        raise FormatError(f"section {section.index} ({section.type_name}) is cut short",
+                          "truncated")
+    if crc32(stored) != section.crc32:
+        raise ChecksumError(f"section {section.index} ({section.type_name}) CRC-32 mismatch")
+    return decompress(section.codec, stored, section.raw_length)
+
+
+def check_unknown_sections(layer: Layer, data: bytes | memoryview) -> None:
+    """Reject unknown required sections; CRC-check and skip unknown optional ones ([R-20], [R-21])."""
+    for sec in layer.sections:
+        if sec.known:
+            continue
+        if sec.required:
+            raise FormatError(f"layer {layer.index} holds required section type 0x{sec.type:04X}, "
+                              f"unknown to this decoder", "unknown-required-section")
+        stored = memoryview(data)[sec.offset:sec.end]
+        if crc32(stored) != sec.crc32:
+            raise ChecksumError(f"section {sec.index} ({sec.type_name}) CRC-32 mismatch")
+
+
+# ----------------------------------------------------------------------------- sketch layer
+def decode_sketch_layer(data: bytes | memoryview, header: Header, limits: Limits) -> GaussianCloud:
+    """Layer 0: Draco positions per cluster, attributes from the cluster's polynomial models."""
+    layer = header.layers[0]
+    check_unknown_sections(layer, data)
+    meta = layer.section(SectionType.METADATA)
+    if meta is not None:
+        limits.check("metadata length", meta.raw_length, limits.max_metadata_bytes)
+        section_payload(data, meta)  # integrity only: content is ignorable ([R-70])
+    table = section_payload(data, layer.section(SectionType.SKETCH_CLUSTERS))
+    draco = section_payload(data, layer.section(SectionType.SKETCH_POSITIONS))
+    coeffs = section_payload(data, layer.section(SectionType.SKETCH_COEFFICIENTS))
+    sh = header.sh_degree
+    plan = parse_sketch(table, len(draco), len(coeffs), layer.gaussian_count, sh, limits)
+    out = GaussianCloud.zeros(layer.gaussian_count, sh)
+    start = 0
+    for c, rec in enumerate(plan.records):
+        count = int(rec["point_count"])
+        blob = draco[plan.draco_offsets[c]:plan.draco_offsets[c + 1]]
+        points = decode_draco_points(blob, count, c)
+        models = {a: read_coefficients(coeffs, plan, c, a, sh) for a in SketchAttribute}
+        values = evaluate_models(normalize_positions(points, rec["center"], rec["half_extent"]),
+                                 models)
+        rows = slice(start, start + count)
+        out.means[rows] = points
+        fill_cluster(out, rows, values, sh)
+        start += count
+    return out
+
+
+def decode_draco_points(blob: bytes, count: int, cluster: int) -> np.ndarray:
+    """Decode a Draco point-cloud blob and check it holds exactly ``count`` finite points ([R-47])."""
+    import DracoPy  # deferred: the only compiled dependency, needed only for sketch layers
+
+    try:
+        decoded = DracoPy.decode(bytes(blob))
+        points = np.asarray(decoded.points, dtype=np.float32).reshape(-1, 3)
+    except Exception as exc:  # DracoPy raises assorted types on corrupt input
+        raise FormatError(f"cluster {cluster}: Draco blob cannot be decoded ({exc})",
+                          "draco-failed") from None
+    if getattr(decoded, "faces", None) is not None and len(decoded.faces):
+        raise FormatError(f"cluster {cluster}: Draco blob is a mesh, not a point cloud",
+                          "draco-failed")
+    if points.shape[0] != count:
+        raise FormatError(f"cluster {cluster}: Draco blob holds {points.shape[0]} points, the "
+                          f"cluster record says {count}", "draco-failed")
+    if not np.isfinite(points).all():
+        raise FormatError(f"cluster {cluster}: Draco positions are not finite", "draco-failed")
+    return points
+
+
+def evaluate_models(x: np.ndarray, models: dict[SketchAttribute, np.ndarray | None]
+                    ) -> dict[SketchAttribute, np.ndarray]:
+    """Evaluate every present model at normalized positions ``x`` sharing one feature matrix.
+
+    Because the monomial order is graded, a model of degree d uses the first M(d) feature columns
+    of the highest-degree matrix ([R-41], [R-43]). Results are float64 (n, outputs).
+    """
+    present = {a: np.asarray(c, dtype=np.float64) for a, c in models.items() if c is not None}
+    top = max(_degree(c) for c in present.values())
+    out = {a: np.empty((x.shape[0], c.shape[1])) for a, c in present.items()}
+    for start in range(0, x.shape[0], _ROWS_PER_CHUNK):
+        stop = min(start + _ROWS_PER_CHUNK, x.shape[0])
+        phi = features(x[start:stop], top)
+        for a, c in present.items():
+            out[a][start:stop] = phi[:, :c.shape[0]] @ c
+    return out
+
+
+def fill_cluster(out: GaussianCloud, rows: slice, values: dict[SketchAttribute, np.ndarray],
+                 sh_degree: int) -> None:
+    """Write evaluated models into the output arrays in the coded->parameter mapping ([R-30])."""
+    out.scales[rows] = values[SketchAttribute.SCALE]
+    out.quats[rows] = decode_rotation(values[SketchAttribute.ROTATION])
+    out.opacities[rows] = decode_opacity(values[SketchAttribute.OPACITY][:, 0])
+    out.sh_dc[rows] = values[SketchAttribute.COLOR_DC]
+    rest = values.get(SketchAttribute.SH_REST)
+    if rest is not None:
+        out.sh_rest[rows] = rest.reshape(-1, SH_REST_COUNTS[sh_degree], 3)
+
+
+def _degree(coeffs: np.ndarray) -> int:
+    for d in range(11):
+        if monomial_count(d) == coeffs.shape[0]:
+            return d
+    raise AssertionError("validated coefficient matrix has no degree")  # pragma: no cover
+
+
+# ------------------------------------------------------------------------------ patch layers
+def read_codebooks(data: bytes | memoryview, header: Header) -> list[Codebook]:
+    """The codebooks carried by layer 1 ([R-50])."""
+    return parse_codebooks(section_payload(data, header.layers[1].section(
+        SectionType.PATCH_CODEBOOKS)), header.sh_degree)
+
+
+def decode_patch_layer(data: bytes | memoryview, header: Header, index: int,
+                       codebooks: list[Codebook]) -> GaussianCloud:
+    """A patch layer: positions plus codebook lookups, activations applied per entry ([R-56])."""
+    layer = header.layers[index]
+    check_unknown_sections(layer, data)
+    n = layer.gaussian_count
+    positions = parse_positions(section_payload(data, layer.section(SectionType.PATCH_POSITIONS)), n)
+    columns = parse_indices(section_payload(data, layer.section(SectionType.PATCH_ATTRIBUTES)), n,
+                            codebooks)
+    out = {"means": positions.decode()}
+    rest = np.zeros((n, SH_REST_COUNTS[header.sh_degree], 3), np.float32)
+    for cb in codebooks:
+        values = gather(cb, columns[cb.attribute])
+        attr = cb.attribute
+        if attr == PatchAttribute.SCALE:
+            out["scales"] = values
+        elif attr == PatchAttribute.ROTATION:
+            out["quats"] = values if cb.entry_dim == 4 else decode_rotation(values)
+        elif attr == PatchAttribute.OPACITY:
+            out["opacities"] = values[:, 0]
+        elif attr == PatchAttribute.COLOR_DC:
+            out["sh_dc"] = values
+        else:
+            rest[:, attr.sh_slice, :] = values.reshape(n, -1, 3)
+    return GaussianCloud(sh_rest=rest, **out)
+
+
+def gather(codebook: Codebook, columns: np.ndarray) -> np.ndarray:
+    """Look up every index group and lay the entries side by side: (n, width) float32.
+
+    Per-entry activations are applied to the codebook before the lookup (rotations normalized when
+    one entry is a whole quaternion, opacities turned into logits), which gives the same values as
+    applying them per Gaussian at a fraction of the cost.
+    """
+    entries = codebook.entries.astype(np.float32)
+    if codebook.attribute == PatchAttribute.ROTATION and codebook.entry_dim == 4:
+        entries = decode_rotation(entries)
+    elif codebook.attribute == PatchAttribute.OPACITY:
+        entries = decode_opacity(entries[:, 0])[:, None]
+    groups, n = columns.shape
+    if groups == 1:
+        return entries[columns[0]]
+    return np.ascontiguousarray(entries[columns].transpose(1, 0, 2).reshape(n, -1))

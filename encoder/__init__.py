@@ -1,0 +1,1 @@
+"""The spcodec reference encoder (extra ``encoder``): categorization, sketch and patch encoding."""

@@ -1,0 +1,178 @@
+"""The ``spcodec`` command line.
+
+Every failure ends with one line on stderr (``spcodec: error: ...``) and a non-zero exit code; no
+traceback for a bad file or a bad argument (``--debug`` shows one), and no partial output file.
+Commands that need the encoder's heavy dependencies import them only when they run, and say which
+extra to install when they are missing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Callable, Sequence
+
+from .errors import FormatError, SpcodecError, UsageError
+
+EXIT_OK, EXIT_ERROR, EXIT_USAGE = 0, 1, 2
+
+Handler = Callable[[argparse.Namespace], int]
+Configure = Callable[[argparse.ArgumentParser], None]
+COMMANDS: dict[str, tuple[str, Configure, Handler]] = {}
+
+
+def command(name: str, help_text: str, configure: Configure):
+    """Register ``fn(args) -> exit code`` as sub-command ``name``; ``configure`` adds its options."""
+    def wrap(fn: Handler) -> Handler:
+        COMMANDS[name] = (help_text, configure, fn)
+        return fn
+    return wrap
+
+
+# --------------------------------------------------------------------------------- decode
+def _add_decode(p: argparse.ArgumentParser) -> None:
+    p.add_argument("input", help="an .spc file (gzip-wrapped or not), or a prefix of one")
+    p.add_argument("-o", "--output", required=True, help="the PLY to write (INRIA layout)")
+    p.add_argument("--max-layer", type=int, default=None,
+                   help="decode layers 0..K only (0 = the sketch layer alone)")
+
+
+@command("decode", "decode an .spc file into a 3DGS PLY", _add_decode)
+def cmd_decode(args: argparse.Namespace) -> int:
+    from .fileio import check_writable
+    from .decoder import decode_layers
+    from .ply import write_ply
+
+    check_writable(args.output)
+    start = time.perf_counter()
+    result = decode_layers(args.input, max_layer=args.max_layer)
+    elapsed = time.perf_counter() - start
+    cloud = result.cloud
+    write_ply(args.output, cloud)
+    counts = ", ".join(f"L{layer.index} {len(layer.cloud)}" for layer in result.layers)
+    print(f"decoded {len(cloud)} Gaussians ({counts}) in {elapsed * 1000:.0f} ms -> {args.output}")
+    return EXIT_OK
+
+
+# ----------------------------------------------------------------------------------- info
+def _add_info(p: argparse.ArgumentParser) -> None:
+    p.add_argument("input", help="an .spc file")
+    p.add_argument("--json", action="store_true", help="print a JSON document")
+
+
+@command("info", "describe an .spc file: version, layers, sections and their byte ranges",
+         _add_info)
+def cmd_info(args: argparse.Namespace) -> int:
+    from .decoder import inspect
+
+    doc = inspect(args.input).to_json()
+    if args.json:
+        print(json.dumps(doc, indent=2))
+        return EXIT_OK
+    print(f"{args.input}: spcodec bitstream v{doc['version']}, {doc['gaussians']} Gaussians, "
+          f"SH degree {doc['sh_degree']}, {doc['stored_size']} bytes"
+          f"{' (gzip-wrapped)' if doc['gzip'] else ''}")
+    print("layers:")
+    for layer in doc["layers"]:
+        print(f"  L{layer['index']:<3} {layer['kind']:<7} {layer['gaussians']:>10} Gaussians, "
+              f"complete at byte {layer['end_offset']}")
+    print("sections:")
+    for s in doc["sections"]:
+        print(f"  #{s['index']:<3} L{s['layer']:<3} {s['type']:<20} {s['codec']:<5} "
+              f"offset {s['offset']:>10}  {s['length']:>10} bytes  (raw {s['raw_length']})")
+    if doc["metadata"]:
+        print("metadata: " + json.dumps(doc["metadata"], sort_keys=True)[:200])
+    return EXIT_OK
+
+
+# ----------------------------------------------------------------------------------- demo
+def _add_demo(p: argparse.ArgumentParser) -> None:
+    p.add_argument("-o", "--output-dir", default="spcodec-demo",
+                   help="folder for demo.spc and demo.ply (created if missing)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the built-in scene")
+
+
+@command("demo", "run the pipeline on a built-in synthetic scene and write demo.spc/demo.ply",
+         _add_demo)
+def cmd_demo(args: argparse.Namespace) -> int:
+    from .demo import run_demo
+
+    return run_demo(Path(args.output_dir), seed=args.seed)
+
+
+# ----------------------------------------------------------------------------------- main
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with every registered sub-command."""
+    from . import __version__
+
+    parser = argparse.ArgumentParser(prog="spcodec", description="Sketch&Patch++ codec for 3D "
+                                     "Gaussian Splatting scenes")
+    parser.add_argument("--version", action="version", version=f"spcodec {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name, (help_text, configure, handler) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        configure(p)
+        p.set_defaults(handler=handler)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``spcodec`` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.handler(args) or EXIT_OK)
+    except KeyboardInterrupt:
+        _fail("interrupted")
+        return 130
+    except Exception as exc:  # noqa: BLE001 - the one place that turns errors into one line
+        if args.debug:
+            raise
+        _fail(describe_error(exc, args))
+        return EXIT_USAGE if isinstance(exc, UsageError) else EXIT_ERROR
+
+
+def describe_error(exc: BaseException, args: argparse.Namespace | None = None) -> str:
+    """The one-line message for an exception reaching the command line."""
+    source = getattr(args, "input", None)
+    if isinstance(exc, FormatError):
+        return f"{source}: {exc}" if source and str(source) not in str(exc) else str(exc)
+    if isinstance(exc, SpcodecError):
+        return str(exc)
+    if isinstance(exc, FileNotFoundError):
+        return f"{exc.filename}: no such file"
+    if isinstance(exc, IsADirectoryError):
+        return f"{exc.filename}: is a directory"
+    if isinstance(exc, PermissionError):
+        return f"{exc.filename}: permission denied"
+    if isinstance(exc, OSError):
+        return f"{exc.filename or ''}: {exc.strerror or exc}".lstrip(": ")
+    if isinstance(exc, MemoryError):
+        return "out of memory"
+    if isinstance(exc, ModuleNotFoundError):
+        return missing_extra_message(exc.name or "")
+    return f"internal error: {exc.__class__.__name__}: {exc} (run with --debug for a traceback)"
+
+
+def missing_extra_message(module: str) -> str:
+    """Which extra installs a missing module."""
+    extra = {"torch": "encoder", "sklearn": "encoder", "scipy": "encoder", "tqdm": "encoder",
+             "zstandard": "zstd", "gsplat": "gsplat"}.get(module.split(".")[0])
+    if extra:
+        return f"this command needs '{module}': pip install 'spcodec[{extra}]'"
+    return f"missing Python module '{module}'"
+
+
+def _fail(message: str) -> None:
+    first = message.strip().splitlines()[0] if message.strip() else "failed"
+    print(f"spcodec: error: {first}", file=sys.stderr)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

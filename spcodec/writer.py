@@ -1,0 +1,184 @@
+"""The deterministic bitstream writer: already-encoded components in, ``.spc`` bytes out.
+
+The encoder and the conformance generator both call :func:`build_bitstream`. It makes no encoding
+decisions (no clustering, fitting or quantization): it lays out the sections the spec requires, in
+layer order ([R-10]), compresses them, and fills in the header, the layer table, the table of contents
+and the CRCs. The same inputs always give the same bytes ([R-90]).
+
+:func:`assemble` is the lower level: it takes explicit :class:`SectionSpec` objects, and lets the
+conformance generator override any derived field to build deliberately invalid files through the same
+code path.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .attributes import PatchAttribute
+from .codecs import compress, crc32, gzip_wrap
+from .container import (
+    FIXED_HEADER_SIZE, LAYER_DTYPE, MAGIC, SECTION_DTYPE, SECTION_FLAG_REQUIRED, VERSION_MAJOR,
+    VERSION_MINOR, Codec, FixedHeader, LayerKind, SectionType, header_size,
+)
+from .fileio import atomic_write
+from .sections import (
+    Codebook, PatchPositions, SketchCluster, pack_codebooks, pack_indices, pack_positions,
+    pack_sketch,
+)
+
+
+@dataclass
+class PatchLayer:
+    """One patch layer: positions and, per attribute, uint8 codebook indices (N, groups)."""
+
+    positions: PatchPositions
+    indices: dict[PatchAttribute, np.ndarray]
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+
+@dataclass
+class EncodedScene:
+    """Everything a file holds, already encoded: the writer's input."""
+
+    sh_degree: int
+    sketch: list[SketchCluster] = field(default_factory=list)
+    codebooks: list[Codebook] = field(default_factory=list)
+    patch_layers: list[PatchLayer] = field(default_factory=list)
+    metadata: dict | None = None
+
+    @property
+    def sketch_count(self) -> int:
+        return sum(c.point_count for c in self.sketch)
+
+
+@dataclass
+class WriteOptions:
+    """How sections are compressed and whether the file is gzip-wrapped."""
+
+    codec: Codec = Codec.ZLIB
+    level: int | None = None
+    gzip: bool = False
+
+
+@dataclass
+class SectionSpec:
+    """One section to assemble. Fields left None are derived; set them to forge invalid files."""
+
+    type: int
+    layer: int
+    raw: bytes
+    codec: int = Codec.ZLIB
+    required: bool = True
+    flags: int | None = None
+    stored: bytes | None = None
+    raw_length: int | None = None
+    crc: int | None = None
+    reserved: int = 0
+
+
+@dataclass
+class LayerSpec:
+    """One layer of the layer table."""
+
+    kind: LayerKind
+    gaussian_count: int
+    end_offset: int | None = None
+
+
+def assemble(sections: list[SectionSpec], layers: list[LayerSpec], sh_degree: int,
+             level: int | None = None, header_overrides: dict | None = None,
+             store_when_larger: bool = True) -> bytes:
+    """Lay out header, layer table, TOC and sections; compute offsets and CRCs ([R-4]..[R-12]).
+
+    With ``store_when_larger``, a section that its codec would make larger is stored uncompressed
+    (codec none) instead.
+    """
+    start = header_size(len(layers), len(sections))
+    toc = np.zeros(len(sections), dtype=SECTION_DTYPE)
+    bodies, offset = [], start
+    layer_ends = [start] * len(layers)
+    for i, sec in enumerate(sections):
+        codec, stored = sec.codec, sec.stored
+        if stored is None:
+            stored = compress(Codec(codec), sec.raw, level)
+            if store_when_larger and codec != Codec.NONE and len(stored) >= len(sec.raw):
+                codec, stored = Codec.NONE, bytes(sec.raw)
+        toc[i] = (sec.type, codec,
+                  sec.flags if sec.flags is not None else (SECTION_FLAG_REQUIRED if sec.required else 0),
+                  sec.layer, sec.reserved, offset, len(stored),
+                  sec.raw_length if sec.raw_length is not None else len(sec.raw),
+                  sec.crc if sec.crc is not None else crc32(stored), 0)
+        bodies.append(stored)
+        offset += len(stored)
+        if sec.layer < len(layers):
+            layer_ends[sec.layer] = offset
+    table = np.zeros(len(layers), dtype=LAYER_DTYPE)
+    for i, layer in enumerate(layers):
+        end = layer.end_offset if layer.end_offset is not None else layer_ends[i]
+        table[i] = (int(layer.kind), b"\0\0\0", layer.gaussian_count, end)
+    header = dict(magic=MAGIC, version_major=VERSION_MAJOR, version_minor=VERSION_MINOR, flags=0,
+                  header_size=start, layer_count=len(layers), section_count=len(sections),
+                  sh_degree=sh_degree, reserved=b"\0" * 7,
+                  gaussian_count=sum(layer.gaussian_count for layer in layers), file_size=offset)
+    header.update(header_overrides or {})
+    block = FixedHeader.build(header) + table.tobytes() + toc.tobytes()
+    assert len(block) == start - 4 or header_overrides, "header block size mismatch"
+    block += crc32(block).to_bytes(4, "little")
+    return block + b"".join(bodies)
+
+
+def scene_sections(scene: EncodedScene, codec: Codec = Codec.ZLIB) -> tuple[list[SectionSpec],
+                                                                              list[LayerSpec]]:
+    """The sections and layers of a scene, in the normative order ([R-13], [R-14])."""
+    table, draco, coeffs = pack_sketch(scene.sketch, scene.sh_degree)
+    sections: list[SectionSpec] = []
+    if scene.metadata is not None:
+        meta = json.dumps(scene.metadata, sort_keys=True, separators=(",", ":"),
+                          ensure_ascii=False).encode("utf-8")
+        sections.append(SectionSpec(SectionType.METADATA, 0, meta, codec, required=False))
+    sections += [
+        SectionSpec(SectionType.SKETCH_CLUSTERS, 0, table, codec),
+        SectionSpec(SectionType.SKETCH_POSITIONS, 0, draco, Codec.NONE),
+        SectionSpec(SectionType.SKETCH_COEFFICIENTS, 0, coeffs, codec),
+    ]
+    layers = [LayerSpec(LayerKind.SKETCH, scene.sketch_count)]
+    for k, patch in enumerate(scene.patch_layers, start=1):
+        if k == 1:
+            sections.append(SectionSpec(SectionType.PATCH_CODEBOOKS, k,
+                                        pack_codebooks(scene.codebooks), codec))
+        sections.append(SectionSpec(SectionType.PATCH_POSITIONS, k,
+                                    pack_positions(patch.positions), codec))
+        sections.append(SectionSpec(SectionType.PATCH_ATTRIBUTES, k,
+                                    pack_indices(patch.indices, scene.codebooks), codec))
+        layers.append(LayerSpec(LayerKind.PATCH, len(patch)))
+    return sections, layers
+
+
+def build_bitstream(scene: EncodedScene, options: WriteOptions | None = None) -> bytes:
+    """The complete file for ``scene`` (gzip-wrapped when ``options.gzip``)."""
+    options = options or WriteOptions()
+    sections, layers = scene_sections(scene, options.codec)
+    data = assemble(sections, layers, scene.sh_degree, options.level)
+    if options.gzip:
+        return gzip_wrap(data, layer_end_offsets(data))
+    return data
+
+
+def layer_end_offsets(data: bytes) -> list[int]:
+    """End offsets of the layers of an unwrapped file, read back from its layer table."""
+    head = FixedHeader.parse(data[:FIXED_HEADER_SIZE])
+    table = np.frombuffer(data, dtype=LAYER_DTYPE, count=head.layer_count,
+                          offset=FIXED_HEADER_SIZE)
+    return [int(e) for e in table["end_offset"]]
+
+
+def write_bitstream(path, scene: EncodedScene, options: WriteOptions | None = None) -> int:
+    """Build the file and write it atomically; returns its size in bytes."""
+    data = build_bitstream(scene, options)
+    atomic_write(path, data)
+    return len(data)

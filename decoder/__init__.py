@@ -4,7 +4,13 @@ Importing this package never imports torch, scikit-learn or scipy ([R-95]); a te
 """
 
 from .api import (
-    DecodedLayer, DecodeResult, FileInfo, StreamDecoder, decode, decode_layers, inspect,
+    DecodedLayer,
+    DecodeResult,
+    FileInfo,
+    StreamDecoder,
+    decode,
+    decode_layers,
+    inspect,
     parse_metadata,
 )
 from .header import Header, Layer, Section, read_header

@@ -12,8 +12,16 @@ import numpy as np
 
 from spcodec.codecs import crc32
 from spcodec.container import (
-    FIXED_HEADER_SIZE, LAYER_DTYPE, MAGIC, SECTION_DTYPE, SECTION_FLAG_REQUIRED, VERSION_MAJOR,
-    FixedHeader, LayerKind, SectionType, header_size,
+    FIXED_HEADER_SIZE,
+    LAYER_DTYPE,
+    MAGIC,
+    SECTION_DTYPE,
+    SECTION_FLAG_REQUIRED,
+    VERSION_MAJOR,
+    FixedHeader,
+    LayerKind,
+    SectionType,
+    header_size,
 )
 from spcodec.errors import ChecksumError, FormatError, TruncatedError, UnsupportedError
 from spcodec.limits import Limits

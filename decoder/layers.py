@@ -10,16 +10,24 @@ from __future__ import annotations
 import numpy as np
 
 from spcodec.attributes import (
-    PatchAttribute, SketchAttribute, decode_opacity, decode_rotation,
+    PatchAttribute,
+    SketchAttribute,
+    decode_opacity,
+    decode_rotation,
 )
 from spcodec.cloud import SH_REST_COUNTS, GaussianCloud
 from spcodec.codecs import crc32, decompress
-from spcodec.container import SH_REST_ABSENT, SectionType
+from spcodec.container import SectionType
 from spcodec.errors import ChecksumError, FormatError
 from spcodec.limits import Limits
 from spcodec.polynomial import features, monomial_count, normalize_positions
 from spcodec.sections import (
-    Codebook, parse_codebooks, parse_indices, parse_positions, parse_sketch, read_coefficients,
+    Codebook,
+    parse_codebooks,
+    parse_indices,
+    parse_positions,
+    parse_sketch,
+    read_coefficients,
 )
 
 from .header import Header, Layer, Section
@@ -169,7 +177,7 @@ def decode_patch_layer(data: bytes | memoryview, header: Header, index: int,
         elif attr == PatchAttribute.COLOR_DC:
             out["sh_dc"] = values
         else:
-            rest[:, attr.sh_slice, :] = values.reshape(n, -1, 3)
+            rest[:, attr.sh_slice, :] = values.reshape(n, attr.width // 3, 3)
     return GaussianCloud(sh_rest=rest, **out)
 
 
@@ -188,4 +196,4 @@ def gather(codebook: Codebook, columns: np.ndarray) -> np.ndarray:
     groups, n = columns.shape
     if groups == 1:
         return entries[columns[0]]
-    return np.ascontiguousarray(entries[columns].transpose(1, 0, 2).reshape(n, -1))
+    return np.ascontiguousarray(entries[columns].transpose(1, 0, 2).reshape(n, groups * entries.shape[1]))

@@ -7,7 +7,12 @@ section codecs and the writer; :mod:`spcodec.decoder` decodes files; :mod:`spcod
 
 from .cloud import GaussianCloud
 from .errors import (
-    ChecksumError, FormatError, LimitError, SpcodecError, TruncatedError, UnsupportedError,
+    ChecksumError,
+    FormatError,
+    LimitError,
+    SpcodecError,
+    TruncatedError,
+    UnsupportedError,
     UsageError,
 )
 from .limits import Limits

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -43,8 +42,8 @@ def _add_decode(p: argparse.ArgumentParser) -> None:
 
 @command("decode", "decode an .spc file into a 3DGS PLY", _add_decode)
 def cmd_decode(args: argparse.Namespace) -> int:
-    from .fileio import check_writable
     from .decoder import decode_layers
+    from .fileio import check_writable
     from .ply import write_ply
 
     check_writable(args.output)

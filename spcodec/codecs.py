@@ -150,11 +150,12 @@ def gzip_wrap(inner: bytes, layer_ends: list[int], level: int = 9) -> bytes:
         pos = end
     body.append(deflater.compress(inner[pos:]))
     body.append(deflater.flush(zlib.Z_FINISH))
-    head_len = 10 + 2 + 4 + 2 + 8 * len(ends)  # fixed header, XLEN, subfield header, payload
+    head_len = 10 + 2 + 4 + 2 + 8 * len(ends) + 2  # fixed part, XLEN, subfield, payload, FHCRC
     payload = struct.pack("<H", len(ends)) + struct.pack(f"<{len(ends)}Q", *(head_len + e for e in ends))
     extra = GZIP_EXTRA_ID + struct.pack("<H", len(payload)) + payload
-    head = GZIP_MAGIC + bytes([8, _GZIP_FLAG_FEXTRA]) + b"\0\0\0\0" + bytes([2, 255])
-    head += struct.pack("<H", len(extra)) + extra
+    head = GZIP_MAGIC + bytes([8, _GZIP_FLAG_FEXTRA | _GZIP_FLAG_FHCRC]) + b"\0\0\0\0"
+    head += bytes([2, 255]) + struct.pack("<H", len(extra)) + extra
+    head += struct.pack("<H", crc32(head) & 0xFFFF)  # FHCRC: protects the layer offsets too
     trailer = struct.pack("<II", crc32(inner), len(inner) & 0xFFFFFFFF)
     return head + b"".join(body) + trailer
 

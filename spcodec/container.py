@@ -15,8 +15,20 @@ import enum
 
 import numpy as np
 from construct import (
-    Array, Bytes, Construct, FormatField, GreedyBytes, Int8ul, Int16ul, Int32ul, Int64ul, Float32l,
-    Pass, Struct, Switch, this,
+    Array,
+    Bytes,
+    Construct,
+    Float32l,
+    FormatField,
+    GreedyBytes,
+    Int8ul,
+    Int16ul,
+    Int32ul,
+    Int64ul,
+    Pass,
+    Struct,
+    Switch,
+    this,
 )
 
 # --------------------------------------------------------------------------------- 3. File header

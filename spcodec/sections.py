@@ -17,8 +17,14 @@ from construct import ConstructError
 
 from .attributes import PatchAttribute, SketchAttribute
 from .container import (
-    CLUSTER_DTYPE, MAX_CODEBOOK_ENTRIES, SH_REST_ABSENT, ClusterRecord, PatchCodebooksPayload,
-    PatchPositionsPayload, PositionMode, SketchClustersPayload,
+    CLUSTER_DTYPE,
+    MAX_CODEBOOK_ENTRIES,
+    SH_REST_ABSENT,
+    ClusterRecord,
+    PatchCodebooksPayload,
+    PatchPositionsPayload,
+    PositionMode,
+    SketchClustersPayload,
 )
 from .errors import FormatError
 from .limits import Limits

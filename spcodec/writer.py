@@ -20,12 +20,27 @@ import numpy as np
 from .attributes import PatchAttribute
 from .codecs import compress, crc32, gzip_wrap
 from .container import (
-    FIXED_HEADER_SIZE, LAYER_DTYPE, MAGIC, SECTION_DTYPE, SECTION_FLAG_REQUIRED, VERSION_MAJOR,
-    VERSION_MINOR, Codec, FixedHeader, LayerKind, SectionType, header_size,
+    FIXED_HEADER_SIZE,
+    LAYER_DTYPE,
+    MAGIC,
+    SECTION_DTYPE,
+    SECTION_FLAG_REQUIRED,
+    VERSION_MAJOR,
+    VERSION_MINOR,
+    Codec,
+    FixedHeader,
+    LayerKind,
+    SectionType,
+    header_size,
 )
 from .fileio import atomic_write
 from .sections import (
-    Codebook, PatchPositions, SketchCluster, pack_codebooks, pack_indices, pack_positions,
+    Codebook,
+    PatchPositions,
+    SketchCluster,
+    pack_codebooks,
+    pack_indices,
+    pack_positions,
     pack_sketch,
 )
 

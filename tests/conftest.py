@@ -1,0 +1,52 @@
+"""Shared fixtures: where real data lives, hypothesis profiles, small encoded scenes."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, settings
+
+settings.register_profile("ci", max_examples=40, deadline=None,
+                          suppress_health_check=[HealthCheck.too_slow])
+settings.register_profile("dev", max_examples=25, deadline=None,
+                          suppress_health_check=[HealthCheck.too_slow])
+settings.register_profile("long", max_examples=1000, deadline=None,
+                          suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "dev"))
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def data_dir() -> Path:
+    """The real-data folder: $SPCODEC_DATA, else ../shared/data beside the repository."""
+    return Path(os.environ.get("SPCODEC_DATA", REPO.parent / "shared" / "data"))
+
+
+def real_file(relative: str) -> Path:
+    """Path of a real data file, or skip the test with the reason when it is absent."""
+    path = data_dir() / relative
+    if not path.exists():
+        pytest.skip(f"real data {relative} not found under {data_dir()} (set SPCODEC_DATA)")
+    return path
+
+
+def real_plys() -> list[Path]:
+    """Every PLY under the data folder (empty when the folder is absent)."""
+    root = data_dir()
+    return sorted(root.rglob("*.ply")) if root.is_dir() else []
+
+
+@pytest.fixture(scope="session")
+def small_scene():
+    """A small valid encoded scene: 4 clusters, 2 patch layers, SH degree 3, metadata."""
+    from spcodec.synthetic import random_encoded_scene
+    return random_encoded_scene(seed=7, clusters=4, patch_layers=2, patch_size=150, sh_degree=3,
+                                metadata={"generator": "tests"})
+
+
+@pytest.fixture(scope="session")
+def small_file(small_scene) -> bytes:
+    from spcodec.writer import build_bitstream
+    return build_bitstream(small_scene)

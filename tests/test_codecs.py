@@ -1,0 +1,100 @@
+"""Section codecs and the gzip wrapper: exact, bounded, and strict about corruption."""
+
+from __future__ import annotations
+
+import gzip
+import zlib
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from spcodec.codecs import (
+    compress,
+    crc32,
+    decompress,
+    gunzip,
+    gzip_wrap,
+    read_gzip_layer_ends,
+    zstd_available,
+)
+from spcodec.container import Codec
+from spcodec.errors import FormatError, LimitError
+
+CODECS = [Codec.NONE, Codec.ZLIB] + ([Codec.ZSTD] if zstd_available() else [])
+
+
+@pytest.mark.parametrize("codec", CODECS)
+@given(data=st.binary(max_size=3000))
+def test_round_trip(codec, data):
+    assert decompress(codec, compress(codec, data), len(data)) == data
+
+
+def test_crc_is_the_zlib_polynomial():
+    assert crc32(b"123456789") == 0xCBF43926
+
+
+@pytest.mark.parametrize("codec", [Codec.ZLIB] + ([Codec.ZSTD] if zstd_available() else []))
+def test_inflating_past_the_declared_length_is_refused(codec):
+    bomb = compress(codec, b"\0" * 1_000_000)
+    with pytest.raises(FormatError) as err:
+        decompress(codec, bomb, 1000)
+    assert err.value.code == "length-mismatch"
+
+
+@pytest.mark.parametrize("codec", [Codec.ZLIB] + ([Codec.ZSTD] if zstd_available() else []))
+def test_short_and_corrupt_streams_are_refused(codec):
+    raw = bytes(range(256)) * 40
+    stored = compress(codec, raw)
+    for bad, length in [(stored[:-5], len(raw)), (stored, len(raw) + 1),
+                        (stored + b"junk", len(raw)), (b"\x00" * 20, len(raw))]:
+        with pytest.raises(FormatError) as err:
+            decompress(codec, bad, length)
+        assert err.value.code in {"decompression-failed", "length-mismatch"}
+
+
+def test_stored_sections_must_match_their_length():
+    with pytest.raises(FormatError) as err:
+        decompress(Codec.NONE, b"abc", 4)
+    assert err.value.code == "length-mismatch"
+
+
+def test_unknown_codec():
+    with pytest.raises(FormatError) as err:
+        decompress(9, b"", 0)
+    assert err.value.code == "unknown-codec"
+
+
+def test_gzip_wrapper_is_standard_gzip_with_layer_offsets():
+    inner = b"A" * 1000 + bytes(range(256)) * 8 + b"Z" * 500
+    ends = [1000, 3048, len(inner)]
+    wrapped = gzip_wrap(inner, ends)
+    assert gzip.decompress(wrapped) == inner            # any gzip tool reads it
+    offsets = read_gzip_layer_ends(wrapped)
+    assert offsets is not None and len(offsets) == 3
+    for end, offset in zip(ends, offsets):               # each prefix inflates to the layer end
+        out = zlib.decompressobj(wbits=31).decompress(wrapped[:offset])
+        assert out == inner[:end]
+    full = gunzip(wrapped, 1 << 20)
+    assert full.complete and full.inner == inner and full.layer_ends == offsets
+
+
+def test_gunzip_of_a_prefix_is_a_prefix_and_limits_hold():
+    inner = bytes(range(256)) * 400
+    wrapped = gzip_wrap(inner, [len(inner)])
+    part = gunzip(wrapped[: len(wrapped) // 2], 1 << 20)
+    assert not part.complete and inner.startswith(part.inner)
+    with pytest.raises(LimitError):
+        gunzip(wrapped, 1000)
+
+
+def test_gunzip_rejects_trailing_members_and_corruption():
+    wrapped = gzip_wrap(b"hello" * 100, [500])
+    with pytest.raises(FormatError) as err:
+        gunzip(wrapped + gzip.compress(b"x"), 1 << 20)
+    assert err.value.code == "trailing-data"
+    broken = bytearray(wrapped)
+    broken[-6] ^= 0xFF  # inside the CRC-32 of the trailer
+    with pytest.raises(FormatError) as err:
+        gunzip(bytes(broken), 1 << 20)
+    assert err.value.code == "bad-gzip"

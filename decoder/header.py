@@ -132,26 +132,28 @@ def read_header(data: bytes | memoryview, limits: Limits) -> Header:
     if head.version_major != VERSION_MAJOR:
         raise UnsupportedError(f"bitstream major version {head.version_major} is not supported "
                                f"(this decoder reads {VERSION_MAJOR}.x)")
-    if head.flags != 0 or head.reserved != b"\0" * 7:
-        raise FormatError("reserved header flags or bytes are not zero", "reserved-nonzero")
+    # Bound the header block before waiting for it or reading it ([R-60]).
     limits.check("layer count", head.layer_count, limits.max_layers)
     limits.check("section count", head.section_count, limits.max_sections)
-    limits.check("Gaussian count", head.gaussian_count, limits.max_gaussians)
-    limits.check("file size", head.file_size, limits.max_file_bytes)
-    if head.layer_count < 1 or head.section_count < 3:
-        raise FormatError("a file needs at least one layer and the three sketch sections",
-                          "bad-layout")
     size = header_size(head.layer_count, head.section_count)
     if head.header_size != size:
         raise FormatError(f"header_size is {head.header_size}, but the tables need {size}",
                           "bad-layout")
-    if head.sh_degree > 3:
-        raise FormatError(f"SH degree {head.sh_degree} is outside 0..3", "bad-value")
     if len(data) < size:
         raise TruncatedError("the data ends inside the header block")
     block = bytes(data[:size])
     if crc32(block[:-4]) != int.from_bytes(block[-4:], "little"):
         raise ChecksumError("header CRC-32 mismatch", "header-crc")
+    # Semantic checks only after the CRC, so corruption is reported as corruption ([R-8]).
+    if head.flags != 0 or head.reserved != b"\0" * 7:
+        raise FormatError("reserved header flags or bytes are not zero", "reserved-nonzero")
+    if head.layer_count < 1 or head.section_count < 3:
+        raise FormatError("a file needs at least one layer and the three sketch sections",
+                          "bad-layout")
+    if head.sh_degree > 3:
+        raise FormatError(f"SH degree {head.sh_degree} is outside 0..3", "bad-value")
+    limits.check("Gaussian count", head.gaussian_count, limits.max_gaussians)
+    limits.check("file size", head.file_size, limits.max_file_bytes)
     layer_rows = np.frombuffer(block, LAYER_DTYPE, head.layer_count, FIXED_HEADER_SIZE)
     toc_rows = np.frombuffer(block, SECTION_DTYPE, head.section_count,
                              FIXED_HEADER_SIZE + layer_rows.nbytes)

@@ -1,4 +1,4 @@
-"""Resource limits a decoder enforces on untrusted input (spec section 9, [R-60]..[R-66]).
+"""Resource limits a decoder enforces on untrusted input (spec section 9, [R-60]..[R-62]).
 
 Every count or length that a file declares is checked against these limits *before* anything sized
 from it is allocated, so a hostile file of a few bytes cannot make the decoder reserve gigabytes.

@@ -43,11 +43,8 @@ class DecodeResult:
     layers: list[DecodedLayer]
     complete: bool
     """True when every layer the file declares was decoded."""
-
-    @property
-    def cloud(self) -> GaussianCloud:
-        """All decoded layers concatenated (layer 0 first)."""
-        return GaussianCloud.concat([layer.cloud for layer in self.layers], self.header.sh_degree)
+    cloud: GaussianCloud
+    """All decoded layers, layer 0 first (each layer's cloud is a view of this one)."""
 
 
 class _LayerDecoder:
@@ -56,15 +53,19 @@ class _LayerDecoder:
     def __init__(self, header: Header, limits: Limits) -> None:
         self.header, self.limits, self.codebooks = header, limits, None
 
-    def decode(self, data: bytes | memoryview, index: int) -> DecodedLayer:
+    def decode(self, data: bytes | memoryview, index: int,
+               out: GaussianCloud | None = None) -> DecodedLayer:
+        """Decode layer ``index`` into ``out`` (views of a larger cloud) or a new cloud."""
         layer = self.header.layers[index]
+        if out is None:
+            out = GaussianCloud.zeros(layer.gaussian_count, self.header.sh_degree)
         if index == 0:
-            cloud = decode_sketch_layer(data, self.header, self.limits)
+            decode_sketch_layer(data, self.header, self.limits, out)
         else:
             if self.codebooks is None:
                 self.codebooks = read_codebooks(data, self.header)
-            cloud = decode_patch_layer(data, self.header, index, self.codebooks)
-        return DecodedLayer(index, layer.kind.name.lower(), cloud, layer.end_offset)
+            decode_patch_layer(data, self.header, index, self.codebooks, out)
+        return DecodedLayer(index, layer.kind.name.lower(), out, layer.end_offset)
 
 
 # ------------------------------------------------------------------------------ whole files
@@ -90,8 +91,16 @@ def decode_layers(source: Source, max_layer: int | None = None,
     header = read_header(data, limits)
     last = _last_decodable_layer(header, len(data), max_layer)
     decoder = _LayerDecoder(header, limits)
-    layers = [decoder.decode(data, k) for k in range(last + 1)]
-    return DecodeResult(header, layers, last == len(header.layers) - 1)
+    # One allocation for every decoded layer; each layer decodes into a view of it.
+    total = header.layers[last].gaussian_count + sum(
+        layer.gaussian_count for layer in header.layers[:last])
+    cloud = GaussianCloud.zeros(total, header.sh_degree)
+    layers, start = [], 0
+    for k in range(last + 1):
+        stop = start + header.layers[k].gaussian_count
+        layers.append(decoder.decode(data, k, cloud.view(start, stop)))
+        start = stop
+    return DecodeResult(header, layers, last == len(header.layers) - 1, cloud)
 
 
 def _last_decodable_layer(header: Header, available: int, max_layer: int | None) -> int:

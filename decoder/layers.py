@@ -60,8 +60,9 @@ def check_unknown_sections(layer: Layer, data: bytes | memoryview) -> None:
 
 
 # ----------------------------------------------------------------------------- sketch layer
-def decode_sketch_layer(data: bytes | memoryview, header: Header, limits: Limits) -> GaussianCloud:
-    """Layer 0: Draco positions per cluster, attributes from the cluster's polynomial models."""
+def decode_sketch_layer(data: bytes | memoryview, header: Header, limits: Limits,
+                        out: GaussianCloud) -> None:
+    """Layer 0 into ``out``: Draco positions per cluster, attributes from the polynomial models."""
     layer = header.layers[0]
     check_unknown_sections(layer, data)
     meta = layer.section(SectionType.METADATA)
@@ -73,7 +74,6 @@ def decode_sketch_layer(data: bytes | memoryview, header: Header, limits: Limits
     coeffs = section_payload(data, layer.section(SectionType.SKETCH_COEFFICIENTS))
     sh = header.sh_degree
     plan = parse_sketch(table, len(draco), len(coeffs), layer.gaussian_count, sh, limits)
-    out = GaussianCloud.zeros(layer.gaussian_count, sh)
     start = 0
     for c, rec in enumerate(plan.records):
         count = int(rec["point_count"])
@@ -86,7 +86,6 @@ def decode_sketch_layer(data: bytes | memoryview, header: Header, limits: Limits
         out.means[rows] = points
         fill_cluster(out, rows, values, sh)
         start += count
-    return out
 
 
 def decode_draco_points(blob: bytes, count: int, cluster: int) -> np.ndarray:
@@ -155,38 +154,34 @@ def read_codebooks(data: bytes | memoryview, header: Header) -> list[Codebook]:
 
 
 def decode_patch_layer(data: bytes | memoryview, header: Header, index: int,
-                       codebooks: list[Codebook]) -> GaussianCloud:
-    """A patch layer: positions plus codebook lookups, activations applied per entry ([R-56])."""
+                       codebooks: list[Codebook], out: GaussianCloud) -> None:
+    """A patch layer into ``out``: positions plus codebook lookups ([R-56])."""
     layer = header.layers[index]
     check_unknown_sections(layer, data)
     n = layer.gaussian_count
     positions = parse_positions(section_payload(data, layer.section(SectionType.PATCH_POSITIONS)), n)
     columns = parse_indices(section_payload(data, layer.section(SectionType.PATCH_ATTRIBUTES)), n,
                             codebooks)
-    out = {"means": positions.decode()}
-    rest = np.zeros((n, SH_REST_COUNTS[header.sh_degree], 3), np.float32)
+    out.means[:] = positions.decode()
+    targets = {PatchAttribute.SCALE: out.scales, PatchAttribute.ROTATION: out.quats,
+               PatchAttribute.OPACITY: out.opacities[:, None], PatchAttribute.COLOR_DC: out.sh_dc}
     for cb in codebooks:
         values = gather(cb, columns[cb.attribute])
-        attr = cb.attribute
-        if attr == PatchAttribute.SCALE:
-            out["scales"] = values
-        elif attr == PatchAttribute.ROTATION:
-            out["quats"] = values if cb.entry_dim == 4 else decode_rotation(values)
-        elif attr == PatchAttribute.OPACITY:
-            out["opacities"] = values[:, 0]
-        elif attr == PatchAttribute.COLOR_DC:
-            out["sh_dc"] = values
+        if cb.attribute == PatchAttribute.ROTATION and cb.entry_dim != 4:
+            values = decode_rotation(values)
+        if cb.attribute in targets:
+            targets[cb.attribute][:] = values
         else:
-            rest[:, attr.sh_slice, :] = values.reshape(n, attr.width // 3, 3)
-    return GaussianCloud(sh_rest=rest, **out)
+            out.sh_rest[:, cb.attribute.sh_slice, :] = values.reshape(n, cb.attribute.width // 3, 3)
 
 
 def gather(codebook: Codebook, columns: np.ndarray) -> np.ndarray:
     """Look up every index group and lay the entries side by side: (n, width) float32.
 
-    Per-entry activations are applied to the codebook before the lookup (rotations normalized when
-    one entry is a whole quaternion, opacities turned into logits), which gives the same values as
-    applying them per Gaussian at a fraction of the cost.
+    Per-entry mappings are applied to the codebook before the lookup (rotations normalized when one
+    entry is a whole quaternion, opacities turned into logits), which gives the same values as
+    applying them per Gaussian at a fraction of the cost. ``np.take`` on the transposed index
+    columns writes the (n, groups, dim) result in one contiguous pass.
     """
     entries = codebook.entries.astype(np.float32)
     if codebook.attribute == PatchAttribute.ROTATION and codebook.entry_dim == 4:
@@ -194,6 +189,4 @@ def gather(codebook: Codebook, columns: np.ndarray) -> np.ndarray:
     elif codebook.attribute == PatchAttribute.OPACITY:
         entries = decode_opacity(entries[:, 0])[:, None]
     groups, n = columns.shape
-    if groups == 1:
-        return entries[columns[0]]
-    return np.ascontiguousarray(entries[columns].transpose(1, 0, 2).reshape(n, groups * entries.shape[1]))
+    return np.take(entries, columns.T, axis=0).reshape(n, groups * entries.shape[1])

@@ -105,6 +105,13 @@ class GaussianCloud:
         """The Gaussians selected by a boolean mask, an index array or a slice (copies)."""
         return GaussianCloud(**{k: np.array(v[index]) for k, v in self.arrays().items()})
 
+    def view(self, start: int, stop: int) -> "GaussianCloud":
+        """Gaussians ``start..stop`` as views sharing memory with this cloud (no copy)."""
+        out = object.__new__(GaussianCloud)
+        for name, array in self.arrays().items():
+            setattr(out, name, array[start:stop])
+        return out
+
     def with_sh_degree(self, degree: int) -> "GaussianCloud":
         """A copy truncated or zero-padded to SH ``degree``."""
         k = SH_REST_COUNTS[degree]

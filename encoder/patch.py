@@ -1,0 +1,209 @@
+"""Patch Gaussians without retraining: importance layers, codebooks (k-means) and uint8 indices.
+
+Following Reduced-3DGS, as the paper does: every attribute except the position is replaced by an
+index into a codebook of at most 256 float16 entries, trained with k-means; positions are not
+codebook-quantized (that costs too much quality) but stored per Gaussian (QUANT16 by default: 16-bit
+fixed point, delta-coded along a Morton curve, which beats the paper's float16 in both size and
+precision). Gaussians are split into layers of decreasing importance so that a prefix of the file
+shows the Gaussians that matter most.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from spcodec.attributes import PatchAttribute, canonical_rotation, encode_opacity
+from spcodec.cloud import GaussianCloud
+from spcodec.container import MAX_CODEBOOK_ENTRIES, PositionMode
+from spcodec.sections import Codebook, PatchPositions
+from spcodec.writer import PatchLayer
+
+_ASSIGN_CHUNK = 1 << 15
+
+
+@dataclass
+class PatchConfig:
+    """Parameters of the patch encoder; defaults follow the paper unless a comment says why not."""
+
+    #: Entries per codebook (the paper and Reduced-3DGS: 256, i.e. one-byte indices).
+    codebook_size: int = 256
+    #: Entry dimension per attribute: the attribute's components are split into groups of this
+    #: size, one index per group. Scale, rotation and colour DC are vector-quantized whole; SH
+    #: bands per RGB coefficient triplet (3), as Reduced-3DGS does: 3/5/7 indices per band.
+    entry_dims: dict[str, int] = field(default_factory=lambda: {
+        "SCALE": 3, "ROTATION": 4, "OPACITY": 1, "COLOR_DC": 3,
+        "SH_BAND_1": 3, "SH_BAND_2": 3, "SH_BAND_3": 3,
+    })
+    #: How positions are stored: "quant16" (default), "float16" (the paper's) or "float32".
+    position_mode: str = "quant16"
+    #: For quant16: bits of precision over the layer's bounding box (<= 16); fewer bits are
+    #: smaller after zlib, at a coarser step.
+    position_bits: int = 16
+    #: Number of patch layers (>= 1).
+    layers: int = 3
+    #: Share of the patch Gaussians in each layer, most important first (renormalized). The first
+    #: layer is small so a streaming client sees the most important Gaussians early.
+    layer_fractions: tuple[float, ...] = (0.2, 0.3, 0.5)
+    #: k-means: at most this many samples train a codebook (the rest are only assigned).
+    kmeans_samples: int = 200_000
+    #: k-means iterations (Lloyd) and restarts.
+    kmeans_iterations: int = 60
+    kmeans_restarts: int = 1
+    #: Weight k-means samples by importance, so codebook entries go where they are visible.
+    weighted_kmeans: bool = True
+
+
+def coded_attributes(cloud: GaussianCloud) -> dict[PatchAttribute, np.ndarray]:
+    """Each patch attribute in its coded domain ([R-30]) as (N, width) float64."""
+    out = {
+        PatchAttribute.SCALE: cloud.scales.astype(np.float64),
+        PatchAttribute.ROTATION: canonical_rotation(cloud.quats),
+        PatchAttribute.OPACITY: encode_opacity(cloud.opacities)[:, None],
+        PatchAttribute.COLOR_DC: cloud.sh_dc.astype(np.float64),
+    }
+    for attr in PatchAttribute.for_sh_degree(cloud.sh_degree)[4:]:
+        out[attr] = cloud.sh_rest[:, attr.sh_slice, :].reshape(len(cloud), -1).astype(np.float64)
+    return out
+
+
+def importance(cloud: GaussianCloud) -> np.ndarray:
+    """A visibility proxy: opacity times the area of the two largest axes' 1-sigma ellipse."""
+    scales = np.sort(cloud.scales.astype(np.float64), axis=1)
+    return encode_opacity(cloud.opacities) * np.exp(scales[:, 1] + scales[:, 2])
+
+
+def split_layers(score: np.ndarray, fractions: tuple[float, ...], layers: int) -> list[np.ndarray]:
+    """Indices of each layer: by decreasing score, sized by ``fractions`` (renormalized)."""
+    order = np.argsort(-score, kind="stable")
+    weights = np.asarray((list(fractions) + [fractions[-1]] * layers)[:layers], np.float64)
+    bounds = np.round(np.cumsum(weights / weights.sum()) * len(score)).astype(np.int64)
+    bounds[-1] = len(score)
+    return [order[a:b] for a, b in zip(np.concatenate([[0], bounds[:-1]]), bounds)]
+
+
+def morton_codes(xyz: np.ndarray) -> np.ndarray:
+    """63-bit Morton codes of positions quantized to 21 bits per axis over their bounding box."""
+    lo, hi = xyz.min(axis=0), xyz.max(axis=0)
+    q = np.round((xyz - lo) / np.maximum(hi - lo, 1e-30) * ((1 << 21) - 1)).astype(np.uint64)
+    code = np.zeros(len(xyz), np.uint64)
+    for axis in range(3):
+        code |= _spread_bits(q[:, axis]) << np.uint64(axis)
+    return code
+
+
+def _spread_bits(v: np.ndarray) -> np.ndarray:
+    """Insert two zero bits between the low 21 bits of each value."""
+    v = v & np.uint64(0x1FFFFF)
+    for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
+                        (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)):
+        v = (v | (v << np.uint64(shift))) & np.uint64(mask)
+    return v
+
+
+def encode_positions(xyz: np.ndarray, mode: str, bits: int = 16) -> PatchPositions:
+    """Positions of one layer in the configured mode."""
+    if mode == "float16":
+        return PatchPositions.float16(xyz)
+    if mode == "float32":
+        return PatchPositions.float32(xyz)
+    if mode != "quant16":
+        raise ValueError(f"unknown position mode {mode!r}")
+    if not 1 <= bits <= 16:
+        raise ValueError("position_bits must be in 1..16")
+    xyz = np.asarray(xyz, np.float64)
+    if len(xyz) == 0:
+        return PatchPositions.quant16(xyz, 1.0, np.zeros(3))
+    lo = xyz.min(axis=0).astype(np.float32)
+    span = xyz.max(axis=0) - lo.astype(np.float64)
+    levels = (1 << bits) - 1
+    # The step is rounded to float32 upward so every position stays within the 16-bit range.
+    step = np.maximum(np.nextafter((span / levels).astype(np.float32), np.float32(np.inf)),
+                      np.float32(1e-30))
+    return PatchPositions.quant16(xyz, step, lo)
+
+
+def train_codebook(values: np.ndarray, entry_dim: int, size: int, weights: np.ndarray | None,
+                   config: PatchConfig, seed: int) -> np.ndarray:
+    """k-means centroids (<= size, float16) of the attribute's entry_dim-wide groups."""
+    from sklearn.cluster import KMeans
+
+    n, width = values.shape
+    groups = values.reshape(n * (width // entry_dim), entry_dim)
+    w = None if weights is None else np.repeat(weights, width // entry_dim)
+    rng = np.random.default_rng(seed)
+    if len(groups) > config.kmeans_samples:
+        pick = np.sort(rng.choice(len(groups), config.kmeans_samples, replace=False))
+        groups, w = groups[pick], None if w is None else w[pick]
+    distinct = np.unique(groups.astype(np.float16), axis=0)
+    if len(distinct) <= size:  # few distinct values: store them exactly
+        return distinct
+    km = KMeans(n_clusters=size, n_init=config.kmeans_restarts, max_iter=config.kmeans_iterations,
+                random_state=seed)
+    km.fit(groups, sample_weight=w)
+    return np.unique(km.cluster_centers_.astype(np.float16), axis=0)
+
+
+def assign(values: np.ndarray, entries: np.ndarray) -> np.ndarray:
+    """Index (n, groups) uint8 of the nearest float16 entry for each group, in chunks."""
+    n, width = values.shape
+    dim = entries.shape[1]
+    groups = values.reshape(n * (width // dim), dim)
+    book = entries.astype(np.float64)
+    book_sq = (book ** 2).sum(axis=1)
+    out = np.empty(len(groups), np.uint8)
+    for start in range(0, len(groups), _ASSIGN_CHUNK):
+        block = groups[start:start + _ASSIGN_CHUNK]
+        dist = book_sq[None, :] - 2.0 * block @ book.T
+        out[start:start + _ASSIGN_CHUNK] = np.argmin(dist, axis=1)
+    return out.reshape(n, width // dim)
+
+
+@dataclass
+class PatchEncoding:
+    """Result of :meth:`PatchEncoder.encode`."""
+
+    codebooks: list[Codebook]
+    layers: list[PatchLayer]
+    order: list[np.ndarray]
+    """For each layer, the indices (into the input cloud) of its Gaussians in stored order."""
+
+
+class PatchEncoder:
+    """Codebooks + indices + positions for patch Gaussians, in importance layers."""
+
+    def __init__(self, config: PatchConfig | None = None, seed: int = 0) -> None:
+        self.config = config or PatchConfig()
+        self.seed = seed
+
+    def encode(self, cloud: GaussianCloud) -> PatchEncoding:
+        cfg = self.config
+        if cfg.codebook_size > MAX_CODEBOOK_ENTRIES or cfg.codebook_size < 1:
+            raise ValueError(f"codebook_size must be in 1..{MAX_CODEBOOK_ENTRIES}")
+        values = coded_attributes(cloud)
+        score = importance(cloud)
+        weights = score / score.mean() if cfg.weighted_kmeans and len(cloud) and score.mean() > 0 \
+            else None
+        codebooks = []
+        for i, (attr, vals) in enumerate(values.items()):
+            dim = cfg.entry_dims.get(attr.name, attr.width)
+            if attr.width % dim:
+                raise ValueError(f"entry dimension {dim} does not divide {attr.name}'s width")
+            if len(cloud) == 0:
+                entries = np.zeros((1, dim), np.float16)
+            else:
+                entries = train_codebook(vals, dim, cfg.codebook_size, weights, cfg,
+                                         self.seed + 7919 * i)
+            codebooks.append(Codebook(attr, entries))
+        indices = {cb.attribute: assign(values[cb.attribute], cb.entries) for cb in codebooks}
+        layers, orders = [], []
+        for members in split_layers(score, cfg.layer_fractions, cfg.layers):
+            if len(members):
+                members = members[np.argsort(morton_codes(cloud.means[members].astype(np.float64)),
+                                             kind="stable")]
+            positions = encode_positions(cloud.means[members], cfg.position_mode,
+                                         cfg.position_bits)
+            layers.append(PatchLayer(positions, {a: idx[members] for a, idx in indices.items()}))
+            orders.append(members)
+        return PatchEncoding(codebooks, layers, orders)

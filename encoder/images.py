@@ -1,4 +1,4 @@
-"""Image files and image layouts for evaluation: read, write, downscale, compare, tile (numpy + Pillow).
+"""Image files and layouts for evaluation: read, write, downscale, compare, tile (numpy + Pillow).
 
 Images inside spcodec are float32 arrays of shape (H, W, 3) with values in [0, 1], linear in the
 stored 8-bit code values (no gamma handling: PSNR/SSIM in the 3DGS literature are computed on the
@@ -65,7 +65,8 @@ def read_image(path: str | os.PathLike,
         try:
             img.load()
         except OSError as exc:
-            raise ImageReadError(f"image {os.fspath(path)} is truncated or corrupt ({exc})") from None
+            raise ImageReadError(f"image {os.fspath(path)} is truncated or corrupt ({exc})") \
+                from None
         mode = img.mode
         if mode in ("I;16", "I;16B", "I;16L", "I"):
             data = np.asarray(img, dtype=np.float64)

@@ -327,8 +327,8 @@ def test_single_transforms_json_with_intrinsics_overrides_and_split(tmp_path: Pa
         if i == 5:
             frame.update({"fl_x": 60.0, "cx": 10.0})  # a per-frame override
         frames.append(frame)
-        Image.fromarray(_pattern(40, 30, seed=i)).save(
-            (root / "images").mkdir(parents=True, exist_ok=True) or root / "images" / f"{i:04d}.jpg")
+        (root / "images").mkdir(parents=True, exist_ok=True)
+        Image.fromarray(_pattern(40, 30, seed=i)).save(root / "images" / f"{i:04d}.jpg")
     (root / "transforms.json").write_text(json.dumps(
         {"fl_x": 50.0, "fl_y": 45.0, "w": 40, "h": 30, "frames": frames}))
     ds = load_dataset(root)

@@ -1,10 +1,11 @@
-"""NeRF-synthetic / instant-ngp datasets: ``transforms_{train,test}.json`` or one ``transforms.json``.
+"""NeRF-synthetic / instant-ngp datasets: ``transforms_{train,test}.json`` or ``transforms.json``.
 
 Conventions handled here:
 
 * ``transform_matrix`` is camera-to-world with OpenGL/Blender camera axes (x right, y up,
   z backward). Our cameras are OpenCV (x right, y down, z forward), so the camera axes y and z are
-  negated — ``c2w_cv = c2w_gl @ diag(1, -1, -1, 1)`` — and the result is inverted to world-to-camera.
+  negated, ``c2w_cv = c2w_gl @ diag(1, -1, -1, 1)``, and the result is inverted to
+  world-to-camera.
   World coordinates are kept as in the file (no recentring or rescaling, as in 3DGS).
 * Intrinsics: ``fl_x``/``fl_y`` in pixels, else ``camera_angle_x``/``camera_angle_y`` (full field
   of view in radians); fy defaults to fx; ``cx``/``cy`` default to the image centre; ``w``/``h``

@@ -84,7 +84,7 @@ def psnr(reference: np.ndarray, ours: np.ndarray, mask: np.ndarray | None = None
 
 
 def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> np.ndarray:
-    """Normalized 1D Gaussian taps centred on the middle one; the 2D window is their outer product."""
+    """Normalized 1D Gaussian taps centred on the middle one (2D window: their outer product)."""
     x = np.arange(size, dtype=np.float64) - size // 2
     taps = np.exp(-(x * x) / (2.0 * sigma * sigma))
     return taps / taps.sum()

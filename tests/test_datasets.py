@@ -613,6 +613,9 @@ def test_real_fox() -> None:
     assert all((c.width, c.height) == (1080, 1920) for c in cams)
     assert cams[0].fx == pytest.approx(1375.52) and cams[0].cy == pytest.approx(965.268)
     assert ds.views[0].undistorter.distortion.k1 == pytest.approx(0.0578421)
+    # One camera for all frames: one shared undistorter whose sampling map is kept.
+    assert all(v.undistorter is ds.views[0].undistorter for v in ds.views)
+    assert ds.views[0].undistorter.keep_maps
     # The cameras orbit the fox: the point closest to all optical axes is seen by every camera.
     a, b = np.zeros((3, 3)), np.zeros(3)
     for c in cams:
@@ -664,6 +667,7 @@ def test_real_beer_reprojects_colmap_points() -> None:
     image = ds.test[0].load_image()
     assert image.shape == (1280, 720, 3)
     assert 0.9 < ds.test[0].valid_mask().mean() < 1.0
+    assert not ds.test[0].undistorter.keep_maps  # one camera per image: no map is kept around
 
 
 @pytest.mark.slow

@@ -135,6 +135,17 @@ def downscaled_camera(camera: Camera, factor: int) -> Camera:
                    fy=camera.fy / factor, cx=camera.cx / factor, cy=camera.cy / factor)
 
 
+def release_unshared_maps(views: Sequence[View]) -> None:
+    """Turn off map caching for undistorters that a single view uses (see Undistorter)."""
+    users: dict[int, int] = {}
+    for view in views:
+        if view.undistorter is not None:
+            users[id(view.undistorter)] = users.get(id(view.undistorter), 0) + 1
+    for view in views:
+        if view.undistorter is not None and users[id(view.undistorter)] == 1:
+            view.undistorter.keep_maps = False
+
+
 def rigid_inverse(matrix: np.ndarray) -> np.ndarray:
     """Inverse of a 4x4 rotation + translation, exact to rounding (no general matrix inverse)."""
     rot = matrix[:3, :3]

@@ -13,7 +13,8 @@ import numpy as np
 from ..cameras import Camera
 from ..images import ImageReadError, image_size
 from .base import (
-    Dataset, DatasetError, View, downscaled_camera, hold_out_split, require_views, warn_missing,
+    Dataset, DatasetError, View, downscaled_camera, hold_out_split, release_unshared_maps,
+    require_views, warn_missing,
 )
 from .colmap_model import ColmapCamera, ColmapModel, read_model
 from .distortion import Distortion, Undistorter
@@ -52,6 +53,7 @@ def load_colmap(root: Path, model_folder: Path, downscale: int, background: np.n
     views = _views(model, model_folder, image_folder, downscale, background)
     require_views(views, root, f"none of the {len(model.images)} images listed in "
                                f"{model_folder} exists in {image_folder}")
+    release_unshared_maps(views)
     train, test = hold_out_split(views, test_every)
     points = colors = None
     if model.points is not None and len(model.points.ids):

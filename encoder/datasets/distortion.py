@@ -110,8 +110,10 @@ def bilinear_sample(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarr
 class Undistorter:
     """Turns images of one distorted camera into images of the same-size pinhole camera.
 
-    The sampling map is built on first use and cached, so views sharing a camera (fox: one camera
-    for 67 images) pay for it once.
+    The sampling map is built on first use and, with ``keep_maps`` (the default), cached, so views
+    sharing a camera (fox: one camera for 67 images) pay for it once. Loaders turn caching off for
+    a camera that only one view uses (beer: 71 cameras), where keeping 71 maps of 7 MB would only
+    cost memory.
     """
 
     width: int
@@ -121,10 +123,12 @@ class Undistorter:
     cx: float
     cy: float
     distortion: Distortion
+    keep_maps: bool = True
     _maps: tuple[np.ndarray, np.ndarray, np.ndarray] | None = field(default=None, repr=False)
 
     def _build_maps(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        if self._maps is None:
+        maps = self._maps
+        if maps is None:
             u = (np.arange(self.width, dtype=np.float64) + 0.5 - self.cx) / self.fx
             v = (np.arange(self.height, dtype=np.float64) + 0.5 - self.cy) / self.fy
             x, y = np.meshgrid(u, v)
@@ -133,8 +137,10 @@ class Undistorter:
             src_v = yd * self.fy + self.cy
             valid = (src_u >= 0.0) & (src_u <= self.width) & (src_v >= 0.0) & \
                 (src_v <= self.height)
-            self._maps = (src_u.astype(np.float32), src_v.astype(np.float32), valid)
-        return self._maps
+            maps = (src_u.astype(np.float32), src_v.astype(np.float32), valid)
+            if self.keep_maps:
+                self._maps = maps
+        return maps
 
     def undistort(self, image: np.ndarray) -> np.ndarray:
         """The pinhole image (same size) of a captured, distorted image."""

@@ -29,7 +29,7 @@ from ..cameras import Camera
 from ..images import ImageReadError, image_has_alpha, image_size
 from .base import (
     Dataset, DatasetError, View, downscaled_camera, hold_out_split, nearest_rotation,
-    require_views, resolve_image, rigid_inverse, warn_missing,
+    release_unshared_maps, require_views, resolve_image, rigid_inverse, warn_missing,
 )
 from .distortion import Distortion, Undistorter
 
@@ -64,6 +64,7 @@ def load_transforms(root: Path, train_json: Path, test_json: Path | None, downsc
     train = _views(train_json, train_frames, root, downscale, background, cache)
     test = _views(test_json, test_frames, root, downscale, background, cache) if test_json else []
     require_views(train + test, root, "every image listed in the transforms files is missing")
+    release_unshared_maps(train + test)
     if test_json is None:
         train, test = hold_out_split(train, test_every)
     return Dataset(root.name, root, "transforms", train, test, background)

@@ -16,7 +16,7 @@ import numpy as np
 
 from spcodec.attributes import PatchAttribute, canonical_rotation, encode_opacity
 from spcodec.cloud import GaussianCloud
-from spcodec.container import MAX_CODEBOOK_ENTRIES, PositionMode
+from spcodec.container import MAX_CODEBOOK_ENTRIES
 from spcodec.sections import Codebook, PatchPositions
 from spcodec.writer import PatchLayer
 

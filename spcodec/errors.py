@@ -86,4 +86,5 @@ ERROR_CODES: dict[str, str] = {
     "bad-gzip": "the gzip wrapper is corrupt",
     "bad-metadata": "the metadata section is not a UTF-8 JSON object",
     "ply-invalid": "a PLY file is malformed or lacks a required property",
+    "dataset-invalid": "a dataset folder lacks files, has unparsable poses or an unsupported camera",
 }

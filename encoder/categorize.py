@@ -166,7 +166,7 @@ def direction_distance(a: np.ndarray, b: np.ndarray, metric: DirectionMetric = "
 
 def resolve_eps_s(points: np.ndarray, config: CategorizeConfig,
                   tree: cKDTree | None = None) -> float:
-    """The spatial radius: ``config.eps_s`` if given, else derived from k-NN spacing (see config)."""
+    """The spatial radius: ``config.eps_s`` if set, else derived from k-NN spacing (see config)."""
     if config.eps_s is not None:
         return float(config.eps_s)
     rng = np.random.default_rng(config.random_state)

@@ -27,7 +27,7 @@ call on the forest edges then labels the clusters.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Iterable, Iterator, Literal
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -219,18 +219,28 @@ class _AttributeCriteria:
 
 
 def _neighbour_pairs(points: np.ndarray, eps_s: float, criteria: _AttributeCriteria,
-                     chunk_size: int, tree: cKDTree):
+                     chunk_size: int, tree: cKDTree) -> Iterator[RadiusPairs]:
     """Chunks of ordered neighbour pairs (i != j) satisfying all three criteria."""
     for pairs in iter_radius_pairs(points, eps_s, chunk_size, tree):
         yield criteria.accept(pairs)
 
 
-def _count_neighbours(pair_chunks, n: int) -> np.ndarray:
+def _count_neighbours(pair_chunks: Iterable[RadiusPairs], n: int) -> np.ndarray:
     """Neighbour count per point, the point itself included (pass 1)."""
     counts = np.ones(n, np.int64)
     for pairs in pair_chunks:
         counts += np.bincount(pairs.rows, minlength=n)
     return counts
+
+
+def _components(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
+    """Connected-component id of each of ``n`` nodes of the undirected graph with edges (a, b).
+
+    Boolean weights: repeated edges then merge to True instead of summing (and possibly wrapping
+    around to an explicit zero in a small integer type).
+    """
+    graph = coo_matrix((np.ones(a.size, bool), (a, b)), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
 
 
 def _spanning_forest(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -242,9 +252,7 @@ def _spanning_forest(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarr
     if a.size == 0:
         return a, b
     nodes, local = np.unique(np.concatenate([a, b]), return_inverse=True)
-    m = nodes.size
-    graph = coo_matrix((np.ones(a.size, np.int8), (local[:a.size], local[a.size:])), shape=(m, m))
-    _, component = connected_components(graph, directed=False)
+    component = _components(local[:a.size], local[a.size:], nodes.size)
     _, first = np.unique(component, return_index=True)  # nodes are sorted: first = smallest
     root = nodes[first[component]]
     keep = nodes != root
@@ -260,7 +268,7 @@ def _nearest_per_row(pairs: RadiusPairs, points: np.ndarray) -> tuple[np.ndarray
     return rows[first], pairs.cols[order][first]
 
 
-def _link_clusters(pair_chunks, core: np.ndarray, points: np.ndarray
+def _link_clusters(pair_chunks: Iterable[RadiusPairs], core: np.ndarray, points: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Pass 2: core-core forest edges and, per point, its nearest core neighbour (-1: none)."""
     n = core.size
@@ -281,9 +289,7 @@ def _link_clusters(pair_chunks, core: np.ndarray, points: np.ndarray
 
 def _raw_labels(forest: np.ndarray, nearest_core: np.ndarray, core: np.ndarray) -> np.ndarray:
     """Cluster ids (arbitrary non-negative numbers) for cores and borders, -1 for noise."""
-    n = core.size
-    graph = coo_matrix((np.ones(forest.shape[1], np.int8), (forest[0], forest[1])), shape=(n, n))
-    _, component = connected_components(graph, directed=False)
+    component = _components(forest[0], forest[1], core.size)
     labels = np.where(core, component, -1).astype(np.int64)
     border = ~core & (nearest_core >= 0)
     labels[border] = component[nearest_core[border]]
@@ -335,11 +341,11 @@ class MultiCriteriaDBSCAN:
         criteria = _AttributeCriteria(principal_axes(cloud), cloud.rgb().astype(np.float64),
                                       config.eps_d, config.eps_c, config.direction_metric)
 
-        def chunks():
+        def chunks() -> Iterator[RadiusPairs]:  # recomputed per pass instead of held in memory
             return _neighbour_pairs(points, self.eps_s_, criteria, config.chunk_size, tree)
 
-        core = _count_neighbours(chunks(), n) >= config.min_samples
-        forest, nearest_core = _link_clusters(chunks(), core, points)
+        core = _count_neighbours(chunks(), n) >= config.min_samples  # pass 1
+        forest, nearest_core = _link_clusters(chunks(), core, points)  # pass 2
         self.labels_ = canonical_labels(_raw_labels(forest, nearest_core, core),
                                         config.min_cluster_size)
         self.core_sample_mask_ = core

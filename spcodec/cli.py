@@ -103,6 +103,132 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return run_demo(Path(args.output_dir), seed=args.seed)
 
 
+# ---------------------------------------------------------------------------- eval, render
+def load_model(path: str, max_layer: int | None = None):
+    """A scene from an .spc (by its magic, gzip-wrapped or not) or from any 3DGS PLY."""
+    from .container import GZIP_MAGIC, MAGIC
+    from .decoder import decode
+    from .ply import read_ply
+
+    with open(path, "rb") as fh:
+        head = fh.read(len(MAGIC))
+    if head == MAGIC or head[:2] == GZIP_MAGIC:
+        return decode(path, max_layer=max_layer)
+    if max_layer is not None:
+        raise UsageError(f"--max-layer needs an .spc input; {path} is not one")
+    return read_ply(path)
+
+
+def _add_view_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--resolution", type=int, default=400, help="side of square views (pixels)")
+    p.add_argument("--max-layer", type=int, default=None, help="use layers 0..K of an .spc")
+    p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
+                   help="auto: gsplat on CUDA when available, else the CPU renderer")
+    p.add_argument("--up", default="-y", help="the scene's up axis for sampled views "
+                   "(-y suits COLMAP-derived scenes; e.g. +z for z-up scenes)")
+    p.add_argument("--antialiased", action="store_true",
+                   help="render with Mip-Splatting's antialiased opacity")
+
+
+def _add_eval(p: argparse.ArgumentParser) -> None:
+    p.add_argument("input", help="the model to judge: an .spc or any 3DGS .ply")
+    ref = p.add_mutually_exclusive_group(required=True)
+    ref.add_argument("--dataset", help="a dataset folder (COLMAP, transforms.json or LLFF): "
+                     "compare with its test images")
+    ref.add_argument("--reference", help="the original model (.ply or .spc): compare renders at "
+                     "held-out sampled views")
+    p.add_argument("--json", action="store_true", help="print a JSON document")
+    p.add_argument("--views", type=int, default=8, help="sampled views (with --reference)")
+    p.add_argument("--downscale", type=int, default=1, help="dataset image downscale factor")
+    p.add_argument("--save-renders", metavar="DIR",
+                   help="write 'reference | ours | error' PNGs into DIR")
+    _add_view_options(p)
+
+
+@command("eval", "measure PSNR/SSIM (and LPIPS when available) against a dataset or a reference",
+         _add_eval)
+def cmd_eval(args: argparse.Namespace) -> int:
+    from .encoder.evaluate import (
+        EvalConfig, evaluate_against_dataset, evaluate_against_reference,
+    )
+
+    _check_positive(views=args.views, resolution=args.resolution, downscale=args.downscale)
+    save = Path(args.save_renders) if args.save_renders else None
+    if save is not None:
+        save.mkdir(parents=True, exist_ok=True)
+    config = EvalConfig(views=args.views, resolution=args.resolution, downscale=args.downscale,
+                        device=args.device, up=args.up, antialiased=args.antialiased,
+                        save_renders=save)
+    model = load_model(args.input, args.max_layer)
+    if args.dataset:
+        report = evaluate_against_dataset(model, Path(args.dataset), config)
+    else:
+        report = evaluate_against_reference(model, load_model(args.reference), config)
+    if args.json:
+        print(json.dumps(report.to_json(), indent=2, allow_nan=False))
+    else:
+        lpips = "n/a (weights not found)" if report.lpips is None else f"{report.lpips:.4f}"
+        print(f"{args.input}: PSNR {report.psnr:.2f} dB, SSIM {report.ssim:.4f}, LPIPS {lpips} "
+              f"over {len(report.views)} views of {report.width}x{report.height} "
+              f"({report.mode}, {report.device}, {report.seconds:.1f} s)")
+    return EXIT_OK
+
+
+def _add_render(p: argparse.ArgumentParser) -> None:
+    p.add_argument("input", help="an .spc or any 3DGS .ply")
+    p.add_argument("-o", "--output", required=True, help="the PNG to write")
+    p.add_argument("--view", type=int, default=0, help="which sampled view (0-based)")
+    p.add_argument("--turntable", type=int, metavar="N",
+                   help="write a contact sheet of N views around the scene instead")
+    p.add_argument("--background", default="0,0,0", help="r,g,b in [0, 1]")
+    _add_view_options(p)
+
+
+@command("render", "render a view (or a turntable contact sheet) of an .spc or .ply to a PNG",
+         _add_render)
+def cmd_render(args: argparse.Namespace) -> int:
+    from .encoder.images import contact_sheet, write_png
+    from .encoder.render import GaussianParams, RenderSettings, render_image, resolve_device
+    from .encoder.views import sample_views
+    from .fileio import check_writable
+
+    check_writable(args.output)
+    _check_positive(resolution=args.resolution)
+    background = _parse_colour(args.background)
+    cloud = load_model(args.input, args.max_layer)
+    if len(cloud) == 0:
+        raise UsageError(f"{args.input} holds no Gaussians to render")
+    count = args.turntable if args.turntable else args.view + 1
+    _check_positive(turntable=count)
+    cameras = sample_views(cloud, count, resolution=(args.resolution, args.resolution),
+                           split="eval", up=args.up)
+    settings = RenderSettings(background=background, antialiased=args.antialiased)
+    params = GaussianParams.from_cloud(cloud, resolve_device(args.device))
+    if args.turntable:
+        image = contact_sheet([render_image(params, cam, settings) for cam in cameras])
+    else:
+        image = render_image(params, cameras[args.view], settings)
+    write_png(args.output, image)
+    print(f"wrote {args.output} ({image.shape[1]}x{image.shape[0]})")
+    return EXIT_OK
+
+
+def _check_positive(**values: int) -> None:
+    for name, value in values.items():
+        if value is not None and value < 1:
+            raise UsageError(f"--{name.replace('_', '-')} must be at least 1, got {value}")
+
+
+def _parse_colour(text: str) -> tuple[float, float, float]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(0.0 <= v <= 1.0 for v in values):
+        raise UsageError(f"--background must be three numbers in [0, 1] like 1,1,1; got {text!r}")
+    return values
+
+
 # ----------------------------------------------------------------------------------- main
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with every registered sub-command."""

@@ -20,8 +20,14 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def data_dir() -> Path:
-    """The real-data folder: $SPCODEC_DATA, else ../shared/data beside the repository."""
-    return Path(os.environ.get("SPCODEC_DATA", REPO.parent / "shared" / "data"))
+    """The real-data folder: $SPCODEC_DATA, else the nearest ``shared/data`` above the repository
+    (``../shared/data`` in CI; further up from a git worktree)."""
+    if "SPCODEC_DATA" in os.environ:
+        return Path(os.environ["SPCODEC_DATA"])
+    for parent in REPO.parents:
+        if (parent / "shared" / "data").is_dir():
+            return parent / "shared" / "data"
+    return REPO.parent / "shared" / "data"
 
 
 def real_file(relative: str) -> Path:

@@ -8,40 +8,32 @@
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from collections import deque
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import data_dir
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
-from spcodec import GaussianCloud, read_ply
 from spcodec.encoder.categorize import (
-    CategorizeConfig, MultiCriteriaDBSCAN, canonical_labels, categorize, principal_axes,
+    CategorizeConfig,
+    MultiCriteriaDBSCAN,
+    canonical_labels,
+    categorize,
+    principal_axes,
 )
 from spcodec.encoder.neighbors import iter_radius_pairs, morton_order
+
+from spcodec import GaussianCloud, read_ply
 from spcodec.synthetic import make_scene
 
-REPO = Path(__file__).resolve().parents[1]
 FOURTH_ST = "pdal_fourth_st_spz/fourth_st_inria.ply"
 PROPERTY = settings(deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
 # ----------------------------------------------------------------------------------- helpers
-def data_dir() -> Path:
-    """$SPCODEC_DATA, else the first ``shared/data`` beside or above the repository."""
-    if "SPCODEC_DATA" in os.environ:
-        return Path(os.environ["SPCODEC_DATA"])
-    for parent in REPO.parents:
-        if (parent / "shared" / "data").is_dir():
-            return parent / "shared" / "data"
-    return REPO.parent / "shared" / "data"
-
-
 def quat_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Hamilton product of (w, x, y, z) quaternions, row-wise (q broadcasts)."""
     pw, px, py, pz = np.moveaxis(p, -1, 0)

@@ -71,7 +71,32 @@ def tile(cloud: GaussianCloud, labels: np.ndarray, tiles: int, jitter: float, se
     return GaussianCloud.concat(parts), np.concatenate(labs)
 
 
-def summarize(name: str, n: int, result: RefineResult, seconds: float) -> None:
+def sh_rest_loss(cloud: GaussianCloud, result: RefineResult) -> str:
+    """What sketch Gaussians lose in higher SH bands: the normalized MSE of their SH rest against
+    what they decode to (zeros without an SH-rest model), point-weighted over clusters."""
+    from spcodec.encoder.polyfit import AttributeScales, coded_targets, decode_cluster
+
+    if not cloud.sh_rest.shape[1] or not result.clusters:
+        return "no SH rest"
+    scales = AttributeScales.from_cloud(cloud)
+    variance = scales.variance(SketchAttribute.SH_REST, 3 * cloud.sh_rest.shape[1])
+    total = energy = 0.0
+    for idx, fit in zip(result.clusters, result.fits):
+        rest = coded_targets(cloud, idx, sh_rest=True)[SketchAttribute.SH_REST]
+        if SketchAttribute.SH_REST in fit.models:
+            rest = rest - decode_cluster(fit.frame, fit.models, cloud.means[idx])[
+                SketchAttribute.SH_REST]
+        total += float((rest ** 2).sum())
+        energy += idx.size
+    rest_bytes = sum(2 * f.models[SketchAttribute.SH_REST].size for f in result.fits
+                     if SketchAttribute.SH_REST in f.models)
+    return (f"SH rest of sketch Gaussians: nMSE {total / energy / variance:.4f} "
+            f"(scene-scale {np.sqrt(variance / (3 * cloud.sh_rest.shape[1])):.4f}), "
+            f"SH-rest coefficient bytes {rest_bytes}")
+
+
+def summarize(name: str, n: int, result: RefineResult, seconds: float,
+              cloud: GaussianCloud | None = None) -> None:
     """Print the numbers the report quotes."""
     s = result.stats
     sketch = max(s.sketch_gaussians, 1)
@@ -81,7 +106,7 @@ def summarize(name: str, n: int, result: RefineResult, seconds: float) -> None:
     print(f"   sketch {s.sketch_gaussians} ({100 * s.sketch_gaussians / n:.1f}%) in "
           f"{s.accepted_clusters} clusters; patch {s.patch_gaussians} {s.patch_by_reason}")
     print(f"   splits {s.splits}, fits {s.fits}, iqr refits {s.iqr_refits}, max depth "
-          f"{s.max_depth}, coefficient bytes {s.coefficient_bytes} "
+          f"{s.max_depth}, iqr dropped clusters {s.iqr_dropped_clusters}, coefficient bytes {s.coefficient_bytes} "
           f"({s.coefficient_bytes / sketch:.2f} B per sketch Gaussian)")
     if result.fits:
         combined = np.array([f.mse_combined for f in result.fits])
@@ -94,6 +119,8 @@ def summarize(name: str, n: int, result: RefineResult, seconds: float) -> None:
                                   weights=[f.point_count for f in result.fits if attr in f.nmse])
             print(f"   {attr.name:9s} degrees {dict(sorted(degrees.items()))}, "
                   f"point-weighted nMSE {weighted:.4f}")
+    if cloud is not None:
+        print(f"   {sh_rest_loss(cloud, result)}")
 
 
 def main() -> None:
@@ -107,10 +134,12 @@ def main() -> None:
     ap.add_argument("--gain", type=float, default=None, help="min_split_gain")
     ap.add_argument("--sh-rest-degree", type=int, default=None)
     ap.add_argument("--no-iqr", action="store_true")
+    ap.add_argument("--iqr-k", type=float, default=None)
     args = ap.parse_args()
     cfg = RefineConfig()
     changes = {"tau_max": args.tau, "degree_lambda": args.lam, "beta": args.beta,
-               "sh_rest_degree": args.sh_rest_degree, "min_split_gain": args.gain}
+               "sh_rest_degree": args.sh_rest_degree, "min_split_gain": args.gain,
+               "iqr_k": args.iqr_k}
     cfg = dataclasses.replace(cfg, **{k: v for k, v in changes.items() if v is not None})
     if args.no_iqr:
         cfg = dataclasses.replace(cfg, iqr_k=None)
@@ -123,7 +152,7 @@ def main() -> None:
         print(f"-- {name}: DBSCAN eps {eps:.5f} in {time.perf_counter() - t:.1f} s")
         t = time.perf_counter()
         result = refine(cloud, labels, cfg, n_jobs=args.jobs)
-        summarize(name, len(cloud), result, time.perf_counter() - t)
+        summarize(name, len(cloud), result, time.perf_counter() - t, cloud)
         if first is None:
             first = (name, cloud, labels, eps)
     if args.tiles and first is not None:

@@ -12,7 +12,10 @@ Per cluster (a *node* of the splitting tree):
 2. fit models (:func:`~spcodec.encoder.polyfit.fit_cluster`); if the decoded ``MSE_combined <=
    tau_max`` the node is accepted, then cleaned by the IQR filter (:func:`iqr_filter`);
 3. otherwise, at depth ``t_max`` -> patch (so *every* accepted cluster meets tau_max);
-4. otherwise split by K-means on ``F = [beta * R || (1 - beta) * X]`` (``R`` = absolute normalized
+4. otherwise, if the node is a part whose own models do not beat its parent's models on the same
+   Gaussians by ``min_split_gain`` -> patch (splitting is not isolating anything coherent: the
+   Gaussians are noise at this scale, and recursing to ``s_min`` would only cost fits);
+5. otherwise split by K-means on ``F = [beta * R || (1 - beta) * X]`` (``R`` = absolute normalized
    residuals of the four combined attributes, ``X`` = positions centred on the box and divided by
    its largest half extent, so the split sees the cluster's true shape) into
    ``k = clamp(ceil(MSE / tau_max), 2, min(k_max, n // s_min))`` parts: a cluster just over the
@@ -189,6 +192,9 @@ class RefineStats:
     splits: int = 0
     """Nodes split by K-means."""
     iqr_refits: int = 0
+    iqr_dropped_clusters: int = 0
+    """Accepted clusters the IQR step sent wholly to patch (too few survivors, or no model of the
+    survivors meeting tau_max)."""
     max_depth: int = 0
     coefficient_bytes: int = 0
     seconds: dict[str, float] = field(default_factory=dict)
@@ -280,12 +286,17 @@ class _NodeResult:
     fits: int = 0
     split: bool = False
     iqr_refits: int = 0
+    iqr_dropped: bool = False
     seconds: float = 0.0
 
 
 def _process_node(key: tuple[int, ...], idx: np.ndarray, parent_mse: float = np.inf
                   ) -> _NodeResult:
-    """Fit one node and decide: accept (then IQR), patch, or split into children."""
+    """Fit one node and decide: accept (then IQR), patch, or split into children.
+
+    ``key`` is the node's path in the splitting tree (root label, then part numbers), which also
+    orders the final clusters; ``parent_mse`` the parent's MSE_combined on these Gaussians.
+    """
     t0 = time.process_time()
     ctx = _WORKER
     assert ctx is not None, "worker not initialized"
@@ -294,6 +305,7 @@ def _process_node(key: tuple[int, ...], idx: np.ndarray, parent_mse: float = np.
     depth = len(key) - 1
     if idx.size < cfg.s_min:
         out.patch.append((idx, "small"))
+        out.seconds = time.process_time() - t0
         return out
     positions = ctx.scene.positions[idx]
     targets = ctx.scene.targets(idx)
@@ -341,6 +353,8 @@ def _accept(out: _NodeResult, idx: np.ndarray, positions: np.ndarray,
         out.patch.append((idx[~keep], "iqr"))
     if kept_fit is not None:
         out.accepted.append((idx[keep], kept_fit))
+    else:
+        out.iqr_dropped = True
 
 
 # ----------------------------------------------------------------------------------- splitting
@@ -582,6 +596,7 @@ def _assemble(results: list[_NodeResult], labels: np.ndarray, scales: AttributeS
         stats.fits += r.fits
         stats.splits += int(r.split)
         stats.iqr_refits += r.iqr_refits
+        stats.iqr_dropped_clusters += int(r.iqr_dropped)
         stats.max_depth = max(stats.max_depth, len(r.key) - 1)
         node_seconds += r.seconds
     accepted.sort(key=lambda a: a[0])

@@ -106,7 +106,8 @@ def summarize(name: str, n: int, result: RefineResult, seconds: float,
     print(f"   sketch {s.sketch_gaussians} ({100 * s.sketch_gaussians / n:.1f}%) in "
           f"{s.accepted_clusters} clusters; patch {s.patch_gaussians} {s.patch_by_reason}")
     print(f"   splits {s.splits}, fits {s.fits}, iqr refits {s.iqr_refits}, max depth "
-          f"{s.max_depth}, iqr dropped clusters {s.iqr_dropped_clusters}, coefficient bytes {s.coefficient_bytes} "
+          f"{s.max_depth}, iqr dropped clusters {s.iqr_dropped_clusters}, coefficient bytes "
+          f"{s.coefficient_bytes} "
           f"({s.coefficient_bytes / sketch:.2f} B per sketch Gaussian)")
     if result.fits:
         combined = np.array([f.mse_combined for f in result.fits])

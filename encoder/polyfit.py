@@ -10,18 +10,19 @@ of one cluster into such models:
 2. **Frame** (:func:`cluster_frame`): center = bounding-box midpoint, half extent = half the box
    per axis, both float32 because that is what the cluster record stores, with a floor so a flat
    axis does not stretch noise to [-1, 1].
-3. **Least squares for every degree at once**: one pass over the data accumulates the Gram matrix
-   ``G = Phi^T Phi`` and ``B = Phi^T Y`` at the highest admissible degree. Because the monomial order
-   is graded, the degree-d problem is the leading ``M(d) x M(d)`` block, and because the leading
-   block of a Cholesky factor is the Cholesky factor of the leading block, a single factorization of
-   ``G + ridge`` solves every degree (two triangular solves each). The ridge keeps coefficients
-   small: float16 punishes large cancelling coefficients far more than float64 does.
+3. **Least squares for every degree at once**: one pass over the data accumulates the Gram
+   matrix ``G = Phi^T Phi`` and ``B = Phi^T Y`` at the highest admissible degree. Because the
+   monomial order is graded, the degree-d problem is the leading ``M(d) x M(d)`` block, and
+   because the leading block of a Cholesky factor is the Cholesky factor of the leading block, a
+   single factorization of ``G + ridge`` solves every degree (two triangular products each). The
+   ridge keeps coefficients small: float16 punishes large cancelling coefficients far more than
+   float64 does.
 4. **float16-aware errors without touching the data again**: the squared error of *any* coefficient
    matrix ``C`` is ``y^T y - 2 C^T B + C^T G C`` column-wise, so the error of the float16-rounded
    coefficients of every degree costs O(M^2) per degree, not O(n M).
 5. **Degree choice** (:func:`select_degrees`): per attribute, minimize
-   ``w_a * nMSE_a(d) + lambda * bytes_a(d) / n`` (a rate-distortion Lagrangian in "normalized MSE per
-   coefficient byte per Gaussian"). If that misses the cluster threshold tau_max although a
+   ``w_a * nMSE_a(d) + lambda * bytes_a(d) / n`` (a rate-distortion Lagrangian in "normalized MSE
+   per coefficient byte per Gaussian"). If that misses the cluster threshold tau_max although a
    costlier choice would meet it, lambda is lowered step by step until it does.
 6. **Verification with the decoder's code** (:func:`decode_cluster`): the chosen float16 models are
    evaluated with :func:`spcodec.decoder.layers.evaluate_models` and written with
@@ -50,7 +51,7 @@ import scipy.linalg
 from spcodec.attributes import SketchAttribute, canonical_rotation, decode_rotation, encode_opacity
 from spcodec.cloud import SH_REST_COUNTS, GaussianCloud, sh_degree_for_rest_count
 from spcodec.decoder.layers import evaluate_models, fill_cluster
-from spcodec.polynomial import MAX_DEGREE, features, monomial_count, normalize_positions
+from spcodec.polynomial import MAX_DEGREE, monomial_count, normalize_positions
 
 if TYPE_CHECKING:  # pragma: no cover - typing only; refine imports this module
     from .refine import RefineConfig
@@ -72,12 +73,12 @@ _LAMBDA_STEPS = (1.0, 0.25, 0.0625, 0.015625, 0.00390625, 0.0)
 class AttributeScales:
     """Scene-wide robust spread of each attribute, the unit of the normalized errors.
 
-    ``values[a]`` is the root mean square over the attribute's components of each component's robust
-    standard deviation (IQR / 1.349), computed in the coded domain over the whole scene (rotations as
-    unit quaternions with w >= 0). ``nmse = mse / (outputs * values[a]**2)`` is then "squared error
-    over scene variance", like 1 - R^2 at scene level. Robust (IQR) rather than plain std because
-    real scenes have heavy tails (huge background splats) that would inflate a plain std and make
-    every error look small.
+    ``values[a]`` is the root mean square over the attribute's components of each component's
+    robust standard deviation (IQR / 1.349), computed in the coded domain over the whole scene
+    (rotations as unit quaternions with w >= 0). ``nmse = mse / (outputs * values[a]**2)`` is then
+    "squared error over scene variance", like 1 - R^2 at scene level. Robust (IQR) rather than
+    plain std because real scenes have heavy tails (huge background splats) that would inflate a
+    plain std and make every error look small.
     """
 
     values: dict[SketchAttribute, float]
@@ -126,11 +127,11 @@ def align_quaternions(quats: np.ndarray) -> np.ndarray:
 
     ``q`` and ``-q`` are the same rotation, so a model may fit either; what it cannot fit is a sign
     that flips between neighbours. The naive ``w >= 0`` rule flips wherever w crosses 0, which
-    happens inside perfectly smooth clusters. Aligning every quaternion with the dominant eigenvector
-    of ``sum q q^T`` (the rotation average of Markley et al.) moves the cut as far from the data as
-    possible: it only lands inside a cluster whose rotations span more than 90 degrees of quaternion
-    angle, which refinement then splits. The dominant vector's sign is fixed (largest component
-    positive) so the result is deterministic.
+    happens inside perfectly smooth clusters. Aligning every quaternion with the dominant
+    eigenvector of ``sum q q^T`` (the rotation average of Markley et al.) moves the cut as far from
+    the data as possible: it only lands inside a cluster whose rotations span more than 90 degrees
+    of quaternion angle, which refinement then splits. The dominant vector's sign is fixed (largest
+    component positive) so the result is deterministic.
     """
     q = decode_rotation(quats).astype(np.float64)
     if q.shape[0] == 0:
@@ -277,7 +278,8 @@ def _moments(x: np.ndarray, y: np.ndarray, degree: int) -> _Moments:
 
 def _cholesky(gram: np.ndarray, ridge: float, n: int) -> np.ndarray:
     """Lower Cholesky factor of ``G + ridge * n * diag(0, 1, 1, ...)``; the ridge grows tenfold
-    until the factorization succeeds (a numerically singular Gram matrix, e.g. coincident points)."""
+    until the factorization succeeds (a numerically singular Gram matrix, e.g. coincident
+    points)."""
     m = gram.shape[0]
     penalty = np.ones(m)
     penalty[0] = 0.0

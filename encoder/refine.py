@@ -1,6 +1,6 @@
-"""Polynomial-regression refinement of clusters into sketch and patch Gaussians (paper section
-"Adaptive Polynomial Regression-Based Refinement", "Iterative Cluster Splitting" and "Post-processing
-and Outlier Removal").
+"""Polynomial-regression refinement of clusters into sketch and patch Gaussians (paper sections
+"Adaptive Polynomial Regression-Based Refinement", "Iterative Cluster Splitting" and
+"Post-processing and Outlier Removal").
 
 Input: a cloud and cluster labels from categorization (``-1`` = noise). Output
 (:class:`RefineResult`): accepted sketch clusters (index arrays into the cloud) with their float16

@@ -508,6 +508,43 @@ def fit_cluster(positions: np.ndarray, attributes: dict[SketchAttribute, np.ndar
     return fit_cluster_detailed(positions, attributes, config, scales)[0]
 
 
+def remeasure(fit: ClusterFit, positions: np.ndarray,
+              attributes: dict[SketchAttribute, np.ndarray], config: "RefineConfig",
+              scales: AttributeScales | None = None) -> ClusterFit:
+    """The same frame and models, with errors measured (decoder code) at other positions.
+
+    The frame needs no change: the format only asks for a positive half extent, and positions a
+    little outside [-1, 1] (Draco rounding, or a subset's box) evaluate the same polynomials.
+    """
+    scales = AttributeScales.unit() if scales is None else scales
+    attributes = _checked(positions, attributes, config)
+    res = residuals(decode_cluster(fit.frame, fit.models, positions), attributes)
+    mse, nmse, combined = attribute_errors(res, scales, config.weights)
+    return ClusterFit(fit.frame, fit.models, fit.degrees, mse, nmse, combined,
+                      int(positions.shape[0]), dict(fit.notes))
+
+
+def refit_or_keep(fit: ClusterFit, positions: np.ndarray,
+                  attributes: dict[SketchAttribute, np.ndarray], config: "RefineConfig",
+                  scales: AttributeScales | None = None) -> ClusterFit:
+    """Models for a cluster whose positions or membership changed since ``fit`` was made.
+
+    Use it after IQR removal and, in the final encoding, with the Draco-decoded positions (and the
+    attributes permuted to Draco's point order). A fresh fit is preferred when it meets tau_max
+    (new frame, degrees chosen by the cost for these points); otherwise the given models are kept
+    when, re-measured here, they meet it: a fresh fit can miss where the old one did not, because
+    fewer points admit lower degrees (``min_points_per_coefficient``). When neither meets tau_max
+    the one with the lower MSE_combined is returned and the caller decides.
+    """
+    refit = fit_cluster(positions, attributes, config, scales)
+    if refit.mse_combined <= config.tau_max:
+        return refit
+    old = remeasure(fit, positions, attributes, config, scales)
+    if old.mse_combined <= config.tau_max or old.mse_combined < refit.mse_combined:
+        return old
+    return refit
+
+
 def _checked(positions: np.ndarray, attributes: dict[SketchAttribute, np.ndarray],
              config: "RefineConfig") -> dict[SketchAttribute, np.ndarray]:
     """Validate shapes; drop SH_REST when the configuration does not model it."""

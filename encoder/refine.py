@@ -46,7 +46,7 @@ from spcodec.cloud import GaussianCloud
 
 from .polyfit import (
     COMBINED_ATTRIBUTES, AttributeScales, ClusterFit, align_quaternions, attribute_errors,
-    decode_cluster, fit_cluster_detailed, residuals,
+    fit_cluster_detailed, refit_or_keep,
 )
 
 __all__ = ["RefineConfig", "RefineResult", "RefineStats", "refine", "iqr_filter", "iqr_outliers"]
@@ -427,10 +427,10 @@ def iqr_filter(positions: np.ndarray, targets: dict[SketchAttribute, np.ndarray]
     clusters' legitimately different sizes and errors in scene-wide quartiles.
 
     Survivors are refit (their bounding box, hence frame, changed, and the outliers no longer pull
-    the fit); the refit is kept if it meets tau_max, otherwise the original models are kept if they
-    meet tau_max on the survivors (the old frame still contains them, so it is a valid frame),
-    otherwise the cluster goes to patch. Fewer than ``s_min`` survivors also go to patch. One pass:
-    the refit's own outliers are not hunted again.
+    the fit) with :func:`~spcodec.encoder.polyfit.refit_or_keep`: the refit if it meets tau_max,
+    else the original models if they meet it on the survivors, else the cluster goes to patch.
+    Fewer than ``s_min`` survivors also go to patch. One pass: the refit's own outliers are not
+    hunted again.
 
     Returns ``(keep mask, fit of the kept Gaussians or None, number of refits run)``; the mask is
     all False when the whole cluster goes to patch.
@@ -446,24 +446,11 @@ def iqr_filter(positions: np.ndarray, targets: dict[SketchAttribute, np.ndarray]
     keep = ~out_mask
     if keep.sum() < config.s_min:
         return np.zeros(n, dtype=bool), None, 0
-    kept_targets = {a: v[keep] for a, v in targets.items()}
-    kept_positions = positions[keep]
-    refit, _ = fit_cluster_detailed(kept_positions, kept_targets, config, scales)
-    if refit.mse_combined <= config.tau_max:
-        return keep, refit, 1
-    old = _remeasure(fit, kept_positions, kept_targets, config, scales)
-    if old.mse_combined <= config.tau_max:
-        return keep, old, 1
+    kept = refit_or_keep(fit, positions[keep], {a: v[keep] for a, v in targets.items()}, config,
+                         scales)
+    if kept.mse_combined <= config.tau_max:
+        return keep, kept, 1
     return np.zeros(n, dtype=bool), None, 1
-
-
-def _remeasure(fit: ClusterFit, positions: np.ndarray, targets: dict[SketchAttribute, np.ndarray],
-               config: RefineConfig, scales: AttributeScales) -> ClusterFit:
-    """The same models and frame, with errors measured (decoder code) on another point set."""
-    res = residuals(decode_cluster(fit.frame, fit.models, positions), targets)
-    mse, nmse, combined = attribute_errors(res, scales, config.weights)
-    return ClusterFit(fit.frame, fit.models, fit.degrees, mse, nmse, combined,
-                      int(positions.shape[0]), dict(fit.notes))
 
 
 # -------------------------------------------------------------------------------------- driver

@@ -16,7 +16,7 @@ from spcodec.attributes import SketchAttribute as A
 from spcodec.attributes import canonical_rotation
 from spcodec.encoder.polyfit import (
     AttributeScales, align_quaternions, cluster_frame, coded_targets, decode_cluster, degree_table,
-    fit_cluster, fit_cluster_detailed, max_admissible_degree, monomials,
+    fit_cluster, fit_cluster_detailed, max_admissible_degree, monomials, refit_or_keep, remeasure,
 )
 from spcodec.encoder.refine import RefineConfig
 from spcodec.polynomial import MAX_DEGREE, evaluate, features, monomial_count
@@ -150,6 +150,50 @@ def test_round_trip_through_a_real_bitstream():
         np.testing.assert_array_equal(cloud.sh_rest[rows].reshape(-1, 9),
                                       exp[A.SH_REST].astype(np.float32))
         start = rows.stop
+
+
+def test_refit_or_keep_keeps_models_a_fresh_fit_cannot_match():
+    """A subset admits lower degrees than the whole; the old models, re-measured on the subset,
+    are kept when only they meet tau_max (here forced by a degree cap in the second config)."""
+    pos, targets, _ = _known_cluster(seed=9, n=600, noise=1e-3)
+    rich = RefineConfig(tau_max=1e-4)
+    fit = fit_cluster(pos, targets, rich)
+    assert fit.mse_combined <= rich.tau_max
+    capped = dataclasses.replace(rich, max_degree=1)
+    half = slice(0, 300)
+    sub = {a: v[half] for a, v in targets.items()}
+    assert fit_cluster(pos[half], sub, capped).mse_combined > rich.tau_max
+    kept = refit_or_keep(fit, pos[half], sub, capped)
+    assert kept.models is fit.models and kept.point_count == 300
+    assert kept.mse_combined <= rich.tau_max
+    assert kept.mse_combined == pytest.approx(remeasure(fit, pos[half], sub, rich).mse_combined)
+    # When a fresh fit meets the threshold it is preferred (new frame for the subset).
+    fresh = refit_or_keep(fit, pos[half], sub, rich)
+    assert fresh.models is not fit.models and fresh.mse_combined <= rich.tau_max
+
+
+def test_models_survive_draco_positions():
+    """Accepted clusters re-modelled at Draco-decoded positions (points reordered by Draco, the
+    attributes permuted to match) still meet tau_max up to the small change coarse (11-bit)
+    positions make to a cluster sitting right at the threshold."""
+    import DracoPy
+    from scipy.optimize import linear_sum_assignment
+
+    from spcodec.encoder.refine import refine
+
+    scene = make_scene(seed=12, curves=6, per_curve=300, blobs=200, sh_degree=0)
+    cfg = RefineConfig(tau_max=0.01)
+    result = refine(scene.cloud, scene.curve_id, cfg, n_jobs=1)
+    assert len(result.clusters) >= 4
+    for idx, fit in zip(result.clusters, result.fits):
+        blob = DracoPy.encode(scene.cloud.means[idx], quantization_bits=11)
+        pos = np.asarray(DracoPy.decode(blob).points, np.float32).reshape(-1, 3)
+        # Coarse quantization makes nearest neighbours ambiguous: match one to one.
+        cost = ((pos[:, None, :] - scene.cloud.means[idx][None]) ** 2).sum(-1)
+        order = linear_sum_assignment(cost)[1]
+        final = refit_or_keep(fit, pos, coded_targets(scene.cloud, idx[order]), cfg,
+                              result.scales)
+        assert final.mse_combined <= 1.02 * cfg.tau_max
 
 
 def test_degree_choice_trades_bytes_for_error():

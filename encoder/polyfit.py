@@ -329,7 +329,8 @@ class DegreeTable:
     """Candidate models of every degree and their predicted normalized errors."""
 
     coefficients: list[np.ndarray]
-    """float16 (M(d), all outputs) for d = 0..top; rows of NaN where float16 overflowed."""
+    """float16 (M(d), all outputs) for d = 0..top (may hold inf where float16 overflowed; such a
+    degree's errors are inf, so it is never chosen)."""
     nmse: dict[SketchAttribute, np.ndarray]
     """Predicted normalized MSE per attribute and degree (inf where a degree is unusable)."""
     n: int
@@ -376,8 +377,8 @@ def _choose(table: DegreeTable, attributes: dict[SketchAttribute, np.ndarray],
     chosen = {}
     for attr, errors in table.nmse.items():
         cap = config.max_degree if attr is not SketchAttribute.SH_REST else config.sh_rest_degree
-        lo = min(config.min_degree, len(errors) - 1)
         hi = min(cap, len(errors) - 1)
+        lo = min(config.min_degree, hi)  # an SH-rest cap below min_degree wins
         degrees = np.arange(lo, hi + 1)
         bytes_per_point = _degree_bytes(attributes[attr].shape[1], degrees) / table.n
         cost = _weight(attr, config) * errors[lo:hi + 1] + lam * bytes_per_point

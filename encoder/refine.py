@@ -93,7 +93,8 @@ class RefineConfig:
     """Each half extent is at least this fraction of the largest one, so a flat axis is not
     stretched to [-1, 1] (there the fit would chase position noise). Unitless."""
     sh_rest_degree: int | None = None
-    """Highest degree of the optional SH-rest model (selected with the same cost, capped here);
+    """Highest degree of the optional SH-rest model (selected with the same cost, capped here and
+    by max_degree);
     None = no model, so sketch Gaussians decode with zero higher SH bands (the paper's choice)."""
     sh_rest_weight: float = 0.25
     """Weight of the SH-rest normalized MSE in its own degree cost (it is not part of
@@ -165,6 +166,8 @@ class RefineConfig:
             raise ValueError("need tau_max > 0, s_min >= 1, t_max >= 0, k_max >= 2")
         if self.min_points_per_coefficient <= 0 or self.ridge < 0 or self.frame_floor <= 0:
             raise ValueError("need min_points_per_coefficient > 0, ridge >= 0, frame_floor > 0")
+        if self.kmeans_n_init < 1 or self.kmeans_max_samples < self.k_max:
+            raise ValueError("need kmeans_n_init >= 1 and kmeans_max_samples >= k_max")
         if (self.iqr_k is not None and self.iqr_k < 0) or self.iqr_min_spread < 0:
             raise ValueError("iqr_k must be None or >= 0, iqr_min_spread >= 0")
         if self.iqr_quantity not in ("residual", "decoded"):

@@ -268,6 +268,9 @@ def test_sh_rest_model_is_optional_and_reduces_its_error():
     assert rest.shape[1] == 45 and rest.shape[0] <= monomial_count(2)
     zero_error = float((targets[A.SH_REST] ** 2).sum(1).mean())
     assert with_rest.mse[A.SH_REST] < 0.1 * zero_error
+    constant = fit_cluster(pos, targets, RefineConfig(sh_rest_degree=0, min_degree=1))
+    assert constant.degrees[A.SH_REST] == 0 and min(constant.degrees.values()) == 0
+    assert all(constant.degrees[a] >= 1 for a in FOUR)
     # SH rest is not part of MSE_combined: the four combined errors are unchanged by it.
     assert with_rest.mse_combined == pytest.approx(without.mse_combined, rel=1e-9, abs=1e-15)
 

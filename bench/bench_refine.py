@@ -76,8 +76,10 @@ def sh_rest_loss(cloud: GaussianCloud, result: RefineResult) -> str:
     what they decode to (zeros without an SH-rest model), point-weighted over clusters."""
     from spcodec.encoder.polyfit import AttributeScales, coded_targets, decode_cluster
 
-    if not cloud.sh_rest.shape[1] or not result.clusters:
-        return "no SH rest"
+    if not cloud.sh_rest.shape[1]:
+        return "scene has no SH rest"
+    if not result.clusters:
+        return "no sketch clusters"
     scales = AttributeScales.from_cloud(cloud)
     variance = scales.variance(SketchAttribute.SH_REST, 3 * cloud.sh_rest.shape[1])
     total = energy = 0.0

@@ -47,11 +47,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.linalg
+from spcodec.decoder.layers import evaluate_models, fill_cluster
 
 from spcodec.attributes import SketchAttribute, canonical_rotation, decode_rotation, encode_opacity
 from spcodec.cloud import SH_REST_COUNTS, GaussianCloud, sh_degree_for_rest_count
-from spcodec.decoder.layers import evaluate_models, fill_cluster
-from spcodec.polynomial import MAX_DEGREE, monomial_count, normalize_positions
+from spcodec.polynomial import MAX_DEGREE, features, monomial_count, normalize_positions
 
 if TYPE_CHECKING:  # pragma: no cover - typing only; refine imports this module
     from .refine import RefineConfig
@@ -241,28 +241,6 @@ def max_admissible_degree(n: int, config: "RefineConfig", cap: int | None = None
     return best
 
 
-def monomials(x: np.ndarray, degree: int) -> np.ndarray:
-    """The feature matrix of :func:`spcodec.polynomial.features`, built a degree at a time.
-
-    In graded lexicographic order the degree-t block is ``x *`` (whole degree t-1 block), then
-    ``y *`` (its x-free tail), then ``z *`` (its last entry), so three broadcast products per
-    degree replace one product per column: several times faster for the Gram pass. Values may
-    differ from ``features`` in the last bit (another association of the products), which is why
-    errors are always re-measured with the decoder's own evaluation.
-    """
-    x = np.asarray(x, dtype=np.float64)
-    out = np.empty((x.shape[0], monomial_count(degree)), order="F")
-    out[:, 0] = 1.0
-    prev, stop = 0, 1
-    for t in range(1, degree + 1):
-        width = stop - prev
-        out[:, stop:stop + width] = out[:, prev:stop] * x[:, :1]
-        out[:, stop + width:stop + width + t] = out[:, stop - t:stop] * x[:, 1:2]
-        out[:, stop + width + t] = out[:, stop - 1] * x[:, 2]
-        prev, stop = stop, stop + width + t + 1
-    return out
-
-
 def _moments(x: np.ndarray, y: np.ndarray, degree: int) -> _Moments:
     """Accumulate ``Phi^T Phi``, ``Phi^T Y`` and column sums of ``Y^2`` in bounded-memory chunks."""
     m = monomial_count(degree)
@@ -270,7 +248,7 @@ def _moments(x: np.ndarray, y: np.ndarray, degree: int) -> _Moments:
     cross = np.zeros((m, y.shape[1]))
     for start in range(0, x.shape[0], _ROWS_PER_CHUNK):
         stop = start + _ROWS_PER_CHUNK
-        phi = monomials(x[start:stop], degree)
+        phi = features(x[start:stop], degree)
         gram += phi.T @ phi
         cross += phi.T @ y[start:stop]
     return _Moments(gram, cross, np.einsum("ij,ij->j", y, y), x.shape[0])

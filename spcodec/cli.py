@@ -149,7 +149,9 @@ def _add_eval(p: argparse.ArgumentParser) -> None:
          _add_eval)
 def cmd_eval(args: argparse.Namespace) -> int:
     from .encoder.evaluate import (
-        EvalConfig, evaluate_against_dataset, evaluate_against_reference,
+        EvalConfig,
+        evaluate_against_dataset,
+        evaluate_against_reference,
     )
 
     _check_positive(views=args.views, resolution=args.resolution, downscale=args.downscale)

@@ -65,17 +65,22 @@ def normalize_positions(positions: np.ndarray, center: np.ndarray,
 
 
 def features(x: np.ndarray, degree: int) -> np.ndarray:
-    """Monomial feature matrix (n, M(degree)) in float64 for normalized positions ``x`` (n, 3)."""
+    """Monomial feature matrix (n, M(degree)) in float64 for normalized positions ``x`` (n, 3).
+
+    Built a degree at a time: in the graded lexicographic order the degree-t block is ``x *`` the
+    whole degree t-1 block, then ``y *`` its x-free tail (the last t entries), then ``z *`` its
+    last entry. Three broadcast products per degree instead of one product per column.
+    """
     x = np.asarray(x, dtype=np.float64)
-    n = x.shape[0]
-    powers = np.empty((degree + 1, n, 3), dtype=np.float64)
-    powers[0] = 1.0
-    for e in range(1, degree + 1):
-        powers[e] = powers[e - 1] * x
-    exps = monomial_exponents(degree)
-    out = np.empty((n, exps.shape[0]), dtype=np.float64)
-    for col, (i, j, k) in enumerate(exps):
-        out[:, col] = powers[i, :, 0] * powers[j, :, 1] * powers[k, :, 2]
+    out = np.empty((x.shape[0], monomial_count(degree)), order="F")
+    out[:, 0] = 1.0
+    prev, stop = 0, 1
+    for t in range(1, degree + 1):
+        width = stop - prev
+        out[:, stop:stop + width] = out[:, prev:stop] * x[:, :1]
+        out[:, stop + width:stop + width + t] = out[:, stop - t:stop] * x[:, 1:2]
+        out[:, stop + width + t] = out[:, stop - 1] * x[:, 2]
+        prev, stop = stop, stop + width + t + 1
     return out
 
 

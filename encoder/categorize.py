@@ -38,7 +38,11 @@ from spcodec.attributes import canonical_rotation
 from spcodec.cloud import GaussianCloud
 
 from .neighbors import (
-    RadiusPairs, iter_radius_pairs, knn_distance_quantile, rowwise_dot, squared_distances,
+    RadiusPairs,
+    iter_radius_pairs,
+    knn_distance_quantile,
+    rowwise_dot,
+    squared_distances,
 )
 
 DirectionMetric = Literal["axis", "signed"]

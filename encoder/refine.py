@@ -45,8 +45,13 @@ from spcodec.attributes import SketchAttribute, decode_rotation, encode_opacity
 from spcodec.cloud import GaussianCloud
 
 from .polyfit import (
-    COMBINED_ATTRIBUTES, AttributeScales, ClusterFit, align_quaternions, attribute_errors,
-    fit_cluster_detailed, refit_or_keep,
+    COMBINED_ATTRIBUTES,
+    AttributeScales,
+    ClusterFit,
+    align_quaternions,
+    attribute_errors,
+    fit_cluster_detailed,
+    refit_or_keep,
 )
 
 __all__ = ["RefineConfig", "RefineResult", "RefineStats", "refine", "iqr_filter", "iqr_outliers"]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -101,6 +102,59 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from .demo import run_demo
 
     return run_demo(Path(args.output_dir), seed=args.seed)
+
+
+# ---------------------------------------------------------------------------------- encode
+def _add_encode(p: argparse.ArgumentParser) -> None:
+    p.add_argument("input", help="a trained 3DGS scene (.ply, INRIA layout or compressed.ply)")
+    p.add_argument("-o", "--output", required=True, help="the .spc file to write")
+    p.add_argument("--no-retrain", action="store_true",
+                   help="encode without retraining the patch Gaussians (required in this version)")
+    p.add_argument("--codec", choices=["zlib", "zstd"], default="zlib",
+                   help="section codec (zlib: every decoder reads it; zstd: faster to decode)")
+    p.add_argument("--gzip", action="store_true", help="wrap the file in gzip")
+    p.add_argument("--no-sketch", action="store_true", help="encode every Gaussian as patch")
+    p.add_argument("--patch-layers", type=int, default=None, help="number of patch layers")
+    p.add_argument("--tau-max", type=float, default=None,
+                   help="polynomial-model error threshold of sketch clusters (unitless)")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random choice")
+    p.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
+    p.add_argument("--stats", metavar="FILE", help="also write the encode statistics as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress display")
+
+
+@command("encode", "encode a 3DGS PLY into an .spc bitstream", _add_encode)
+def cmd_encode(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from .encoder.pipeline import EncoderConfig, encode
+    from .encoder.progress import StageReporter, print_summary
+    from .fileio import atomic_write, check_writable
+    from .ply import read_ply
+
+    if not args.no_retrain:
+        raise UsageError("retraining is not available in this version: pass --no-retrain")
+    check_writable(args.output)
+    if args.stats:
+        check_writable(args.stats)
+    config = EncoderConfig(seed=args.seed, n_jobs=args.jobs, use_sketch=not args.no_sketch,
+                           codec=args.codec, gzip=args.gzip)
+    if args.patch_layers is not None:
+        _check_positive(patch_layers=args.patch_layers)
+        config.patch = dataclasses.replace(config.patch, layers=args.patch_layers)
+    if args.tau_max is not None:
+        if not args.tau_max > 0:
+            raise UsageError(f"--tau-max must be positive, got {args.tau_max}")
+        config.refine = dataclasses.replace(config.refine, tau_max=args.tau_max)
+    cloud = read_ply(args.input)
+    reporter = StageReporter(enabled=not args.quiet)
+    result = encode(cloud, config, progress=reporter.stage, source_name=Path(args.input).name)
+    atomic_write(args.output, result.data)
+    stats = dict(result.stats, input_bytes=os.path.getsize(args.input), output=str(args.output))
+    if args.stats:
+        atomic_write(args.stats, (json.dumps(stats, indent=2) + "\n").encode())
+    print_summary(stats)
+    return EXIT_OK
 
 
 # ---------------------------------------------------------------------------- eval, render

@@ -12,15 +12,23 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
-
 from spcodec.encoder.datasets import (
-    DatasetError, Distortion, MissingImageWarning, Undistorter, detect_format, load_dataset,
+    DatasetError,
+    Distortion,
+    MissingImageWarning,
+    Undistorter,
+    detect_format,
+    load_dataset,
 )
 from spcodec.encoder.datasets.colmap import pinhole_and_distortion
 from spcodec.encoder.datasets.colmap_model import (
-    quaternion_to_matrix, read_cameras_binary, read_model, read_points_binary,
+    quaternion_to_matrix,
+    read_cameras_binary,
+    read_model,
+    read_points_binary,
 )
 from spcodec.encoder.datasets.llff import load_llff
+
 from spcodec.errors import UsageError
 
 DATA = Path(os.environ.get("SPCODEC_DATA", "/work/shared/data"))

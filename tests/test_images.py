@@ -7,10 +7,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
-
 from spcodec.encoder.images import (
-    ImageReadError, composite_alpha, contact_sheet, downscale_area, error_map, image_has_alpha,
-    image_size, read_image, side_by_side, to_uint8, write_png,
+    ImageReadError,
+    composite_alpha,
+    contact_sheet,
+    downscale_area,
+    error_map,
+    image_has_alpha,
+    image_size,
+    read_image,
+    side_by_side,
+    to_uint8,
+    write_png,
 )
 
 

@@ -8,10 +8,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from spcodec.encoder import metrics
 from spcodec.encoder.metrics import (
-    PSNR_CAP_DB, MetricUnavailable, image_metrics, lpips, lpips_status, psnr, ssim, ssim_map,
+    PSNR_CAP_DB,
+    MetricUnavailable,
+    image_metrics,
+    lpips,
+    lpips_status,
+    psnr,
+    ssim,
+    ssim_map,
 )
 
 

@@ -9,16 +9,26 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from spcodec.encoder.polyfit import (
+    AttributeScales,
+    attribute_errors,
+    coded_targets,
+    decode_cluster,
+    fit_cluster,
+    fit_cluster_detailed,
+    residuals,
+)
+from spcodec.encoder.refine import (
+    RefineConfig,
+    RefineResult,
+    choose_k,
+    iqr_filter,
+    iqr_outliers,
+    refine,
+)
 
 from spcodec.attributes import SketchAttribute as A
 from spcodec.cloud import GaussianCloud
-from spcodec.encoder.polyfit import (
-    AttributeScales, attribute_errors, coded_targets, decode_cluster, fit_cluster,
-    fit_cluster_detailed, residuals,
-)
-from spcodec.encoder.refine import (
-    RefineConfig, RefineResult, choose_k, iqr_filter, iqr_outliers, refine,
-)
 from spcodec.polynomial import monomial_count
 from spcodec.synthetic import make_scene
 

@@ -9,14 +9,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from spcodec.encoder.cameras import Camera
+from spcodec.encoder.views import (
+    ViewSamplingWarning,
+    parse_up,
+    robust_bounds,
+    sample_views,
+    sample_views_report,
+    view_coverage,
+)
 
 import spcodec
 from spcodec.cloud import GaussianCloud
-from spcodec.encoder.cameras import Camera
-from spcodec.encoder.views import (
-    ViewSamplingWarning, parse_up, robust_bounds, sample_views, sample_views_report,
-    view_coverage,
-)
 from spcodec.errors import UsageError
 
 DATA = Path(os.environ.get("SPCODEC_DATA", "/work/shared/data"))

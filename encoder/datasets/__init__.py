@@ -26,8 +26,14 @@ from typing import Sequence
 from spcodec.errors import UsageError
 
 from .base import (
-    TEST_EVERY, Dataset, DatasetError, MissingImageWarning, View, downscaled_camera,
-    hold_out_split, parse_background,
+    TEST_EVERY,
+    Dataset,
+    DatasetError,
+    MissingImageWarning,
+    View,
+    downscaled_camera,
+    hold_out_split,
+    parse_background,
 )
 from .colmap import SUPPORTED_MODELS, load_colmap
 from .colmap_model import find_model_folder

@@ -13,8 +13,14 @@ import numpy as np
 from ..cameras import Camera
 from ..images import ImageReadError, image_size
 from .base import (
-    Dataset, DatasetError, View, downscaled_camera, hold_out_split, release_unshared_maps,
-    require_views, warn_missing,
+    Dataset,
+    DatasetError,
+    View,
+    downscaled_camera,
+    hold_out_split,
+    release_unshared_maps,
+    require_views,
+    warn_missing,
 )
 from .colmap_model import ColmapCamera, ColmapModel, read_model
 from .distortion import Distortion, Undistorter

@@ -22,7 +22,13 @@ import numpy as np
 from ..cameras import Camera
 from ..images import ImageReadError, image_size
 from .base import (
-    Dataset, DatasetError, View, downscaled_camera, hold_out_split, nearest_rotation, rigid_inverse,
+    Dataset,
+    DatasetError,
+    View,
+    downscaled_camera,
+    hold_out_split,
+    nearest_rotation,
+    rigid_inverse,
 )
 
 _IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg"}

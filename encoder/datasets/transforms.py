@@ -28,8 +28,17 @@ import numpy as np
 from ..cameras import Camera
 from ..images import ImageReadError, image_has_alpha, image_size
 from .base import (
-    Dataset, DatasetError, View, downscaled_camera, hold_out_split, nearest_rotation,
-    release_unshared_maps, require_views, resolve_image, rigid_inverse, warn_missing,
+    Dataset,
+    DatasetError,
+    View,
+    downscaled_camera,
+    hold_out_split,
+    nearest_rotation,
+    release_unshared_maps,
+    require_views,
+    resolve_image,
+    rigid_inverse,
+    warn_missing,
 )
 from .distortion import Distortion, Undistorter
 

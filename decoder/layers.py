@@ -18,6 +18,7 @@ from spcodec.attributes import (
 from spcodec.cloud import SH_REST_COUNTS, GaussianCloud
 from spcodec.codecs import crc32, decompress
 from spcodec.container import SectionType
+from spcodec.draco_io import decode_points
 from spcodec.errors import ChecksumError, FormatError
 from spcodec.limits import Limits
 from spcodec.polynomial import features, monomial_count, normalize_positions
@@ -74,39 +75,21 @@ def decode_sketch_layer(data: bytes | memoryview, header: Header, limits: Limits
     coeffs = section_payload(data, layer.section(SectionType.SKETCH_COEFFICIENTS))
     sh = header.sh_degree
     plan = parse_sketch(table, len(draco), len(coeffs), layer.gaussian_count, sh, limits)
-    start = 0
-    for c, rec in enumerate(plan.records):
-        count = int(rec["point_count"])
-        blob = draco[plan.draco_offsets[c]:plan.draco_offsets[c + 1]]
-        points = decode_draco_points(blob, count, c)
-        models = {a: read_coefficients(coeffs, plan, c, a, sh) for a in SketchAttribute}
-        values = evaluate_models(normalize_positions(points, rec["center"], rec["half_extent"]),
-                                 models)
-        rows = slice(start, start + count)
-        out.means[rows] = points
-        fill_cluster(out, rows, values, sh)
-        start += count
-
-
-def decode_draco_points(blob: bytes, count: int, cluster: int) -> np.ndarray:
-    """Decode a Draco point-cloud blob and check it holds exactly ``count`` finite points ([R-47])."""
-    import DracoPy  # deferred: the only compiled dependency, needed only for sketch layers
-
-    try:
-        decoded = DracoPy.decode(bytes(blob))
-        points = np.asarray(decoded.points, dtype=np.float32).reshape(-1, 3)
-    except Exception as exc:  # DracoPy raises assorted types on corrupt input
-        raise FormatError(f"cluster {cluster}: Draco blob cannot be decoded ({exc})",
-                          "draco-failed") from None
-    if getattr(decoded, "faces", None) is not None and len(decoded.faces):
-        raise FormatError(f"cluster {cluster}: Draco blob is a mesh, not a point cloud",
-                          "draco-failed")
-    if points.shape[0] != count:
-        raise FormatError(f"cluster {cluster}: Draco blob holds {points.shape[0]} points, the "
-                          f"cluster record says {count}", "draco-failed")
-    if not np.isfinite(points).all():
-        raise FormatError(f"cluster {cluster}: Draco positions are not finite", "draco-failed")
-    return points
+    starts = np.concatenate([[0], np.cumsum(plan.records["point_count"], dtype=np.int64)])
+    for b, run in enumerate(plan.runs):
+        points = decode_points(draco[run.start:run.stop], run.points, f"sketch Draco blob {b}")
+        offset = 0
+        for c in range(run.first_cluster, run.end_cluster):
+            rec = plan.records[c]
+            count = int(rec["point_count"])
+            mine = points[offset:offset + count]
+            offset += count
+            models = {a: read_coefficients(coeffs, plan, c, a, sh) for a in SketchAttribute}
+            values = evaluate_models(normalize_positions(mine, rec["center"], rec["half_extent"]),
+                                     models)
+            rows = slice(int(starts[c]), int(starts[c]) + count)
+            out.means[rows] = mine
+            fill_cluster(out, rows, values, sh)
 
 
 def evaluate_models(x: np.ndarray, models: dict[SketchAttribute, np.ndarray | None]

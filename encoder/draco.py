@@ -117,3 +117,43 @@ def match_points(original: np.ndarray, decoded: np.ndarray) -> np.ndarray:
             result[rest[row]] = sources[col]
             d[:, col] = np.inf
     return result
+
+
+@dataclass
+class OrderedBlob:
+    """An order-preserving Draco blob and the positions a decoder gets from it, in input order."""
+
+    blob: bytes
+    positions: np.ndarray
+
+
+def grid_for(points: np.ndarray, step: float) -> tuple[np.ndarray, int]:
+    """Origin and bit depth of a quantization grid with ``step`` covering ``points``."""
+    lo = np.asarray(points, np.float64).min(axis=0)
+    extent = float((np.asarray(points, np.float64).max(axis=0) - lo).max())
+    return lo, quantization_bits(extent, step)
+
+
+def encode_ordered(points: np.ndarray, step: float, origin: np.ndarray, bits: int,
+                   compression_level: int = 10) -> OrderedBlob | None:
+    """Draco sequential coding on a fixed grid; None if the decoded order does not match the input.
+
+    A fixed grid (origin, step, bits) gives every point the same decoded position whichever other
+    points share the blob, so a blob can be rebuilt without some clusters and the survivors' models
+    stay valid.
+    """
+    import DracoPy
+
+    points = np.asarray(points, dtype=np.float32)
+    if len(points) == 0:
+        return OrderedBlob(b"", np.zeros((0, 3), np.float32))
+    blob = DracoPy.encode(points, quantization_bits=bits, compression_level=compression_level,
+                          preserve_order=True, quantization_range=step * ((1 << bits) - 1),
+                          quantization_origin=np.asarray(origin, np.float64).tolist())
+    decoded = np.asarray(DracoPy.decode(blob).points, dtype=np.float32).reshape(-1, 3)
+    if decoded.shape != points.shape:
+        return None
+    if np.abs(decoded.astype(np.float64) - points).max(initial=0.0) > 0.51 * step * 1.0001 + \
+            1e-6 * float(np.abs(points).max(initial=0.0)):
+        return None
+    return OrderedBlob(blob, decoded)

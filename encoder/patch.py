@@ -20,6 +20,8 @@ from spcodec.container import MAX_CODEBOOK_ENTRIES
 from spcodec.sections import Codebook, PatchPositions
 from spcodec.writer import PatchLayer
 
+from .draco import encode_ordered, grid_for
+
 _ASSIGN_CHUNK = 1 << 15
 
 
@@ -36,10 +38,10 @@ class PatchConfig:
         "SCALE": 3, "ROTATION": 4, "OPACITY": 1, "COLOR_DC": 3,
         "SH_BAND_1": 3, "SH_BAND_2": 3, "SH_BAND_3": 3,
     })
-    #: How positions are stored: "quant16" (default), "float16" (the paper's) or "float32".
-    position_mode: str = "quant16"
-    #: For quant16: bits of precision over the layer's bounding box (<= 16); fewer bits are
-    #: smaller after zlib, at a coarser step.
+    #: How positions are stored: "draco" (order-preserving Draco, the smallest), "quant16" (16-bit
+    #: fixed point, delta-coded), "float16" (the paper's) or "float32" (lossless).
+    position_mode: str = "draco"
+    #: For draco and quant16: bits of precision over the layer's bounding box (quant16: <= 16).
     position_bits: int = 16
     #: Number of patch layers (>= 1).
     layers: int = 3
@@ -103,7 +105,19 @@ def _spread_bits(v: np.ndarray) -> np.ndarray:
 
 
 def encode_positions(xyz: np.ndarray, mode: str, bits: int = 16) -> PatchPositions:
-    """Positions of one layer in the configured mode."""
+    """Positions of one layer in the configured mode (draco falls back to quant16 if Draco does not
+    keep the order, which the encoder checks by decoding)."""
+    if mode == "draco":
+        xyz = np.asarray(xyz, np.float64)
+        if len(xyz) == 0:
+            return PatchPositions.draco(b"", np.zeros((0, 3), np.float32))
+        origin, _ = grid_for(xyz, 1.0)
+        span = float((xyz.max(axis=0) - origin).max())
+        step = max(span, 1e-30) / ((1 << bits) - 1)
+        encoded = encode_ordered(xyz, step, origin, bits)
+        if encoded is not None:
+            return PatchPositions.draco(encoded.blob, encoded.positions)
+        mode, bits = "quant16", min(bits, 16)
     if mode == "float16":
         return PatchPositions.float16(xyz)
     if mode == "float32":

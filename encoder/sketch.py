@@ -16,7 +16,8 @@ import numpy as np
 from spcodec.cloud import GaussianCloud
 from spcodec.sections import SketchCluster
 
-from .draco import encode_cluster, robust_diameter
+from .draco import encode_cluster, encode_ordered, grid_for, robust_diameter
+from .patch import morton_codes
 from .polyfit import AttributeScales, ClusterFit, coded_targets, refit_or_keep
 from .refine import RefineConfig, RefineResult
 
@@ -34,6 +35,10 @@ class SketchConfig:
     position_error: float = 3e-4
     #: Draco compression level (0..10; 10 is the smallest output, still fast for point clouds).
     draco_compression_level: int = 10
+    #: "run": all clusters share one order-preserving Draco blob on a scene-wide grid (one header
+    #: instead of one per cluster: about half the size on clusters of a few dozen Gaussians);
+    #: "per_cluster": one kd-tree blob per cluster (best for clusters of thousands).
+    grouping: str = "run"
     #: A cluster whose models, refitted on decoded positions, exceed tau_max by more than this
     #: factor goes back to patch (refits move the error a little either way; 1.0 is strict).
     tau_tolerance: float = 1.05
@@ -45,6 +50,8 @@ class SketchConfig:
             raise ValueError("draco_compression_level must be in 0..10")
         if self.tau_tolerance < 1:
             raise ValueError("tau_tolerance must be >= 1")
+        if self.grouping not in ("run", "per_cluster"):
+            raise ValueError("grouping must be 'run' or 'per_cluster'")
 
 
 @dataclass
@@ -77,39 +84,100 @@ class SketchEncoder:
 
     def encode(self, cloud: GaussianCloud, refined: RefineResult, progress=None) -> SketchEncoding:
         step, diameter = self.quantization_step(cloud)
-        sh_rest = self.refine_config.sh_rest_degree is not None
         out = SketchEncoding([], [], [], np.zeros(0, np.int64), step, diameter,
                              {"duplicates": 0, "rejected_clusters": 0, "rejected_gaussians": 0})
+        if self.config.grouping == "run" and refined.clusters:
+            done = self._encode_run(cloud, refined, step, out, progress)
+            if done:
+                return out
+        return self._encode_per_cluster(cloud, refined, step, out, progress)
+
+    # ------------------------------------------------------------------- one blob per cluster
+    def _encode_per_cluster(self, cloud, refined, step, out, progress) -> SketchEncoding:
         back: list[np.ndarray] = []
         for members, fit in zip(refined.clusters, refined.fits):
-            encoded = self._encode_one(cloud, members, fit, refined.scales, step, sh_rest)
+            draco = encode_cluster(cloud.means[members], step, self.config.draco_compression_level)
+            order, duplicates = members[draco.source], members[draco.dropped]
+            new_fit = self._refit(cloud, order, draco.positions, fit, refined.scales)
             if progress is not None:
                 progress(1)
-            if encoded is None:
-                out.stats["rejected_clusters"] += 1
-                out.stats["rejected_gaussians"] += len(members)
-                back.append(members)
+            if new_fit is None:
+                self._reject(out, members, back)
                 continue
-            cluster, new_fit, order, duplicates = encoded
-            out.clusters.append(cluster)
-            out.fits.append(new_fit)
-            out.sources.append(order)
+            self._accept(out, draco.blob, order, new_fit)
             out.stats["duplicates"] += len(duplicates)
             back.append(duplicates)
-        out.to_patch = np.sort(np.concatenate(back)) if back else np.zeros(0, np.int64)
+        out.to_patch = _sorted_union(back)
         return out
 
-    def _encode_one(self, cloud: GaussianCloud, members: np.ndarray, fit: ClusterFit,
-                    scales: AttributeScales, step: float, sh_rest: bool):
-        draco = encode_cluster(cloud.means[members], step, self.config.draco_compression_level)
-        order = members[draco.source]
-        duplicates = members[draco.dropped]
+    # ------------------------------------------------------------ one blob for every cluster
+    def _encode_run(self, cloud, refined, step, out, progress) -> bool:
+        """All clusters in one order-preserving blob; False when Draco did not keep the order."""
+        means = cloud.means.astype(np.float64)
+        every = np.concatenate(refined.clusters)
+        origin, bits = grid_for(means[every], step)
+        rank = np.argsort(morton_codes(np.stack([means[m].mean(axis=0)
+                                                 for m in refined.clusters])), kind="stable")
+        members = [_morton_sorted(refined.clusters[i], means) for i in rank]
+        fits = [refined.fits[i] for i in rank]
+        level = self.config.draco_compression_level
+        first = encode_ordered(means[np.concatenate(members)], step, origin, bits, level)
+        if first is None:
+            return False
+        kept, back, offset = [], [], 0
+        for m, fit in zip(members, fits):
+            positions = first.positions[offset:offset + len(m)]
+            offset += len(m)
+            new_fit = self._refit(cloud, m, positions, fit, refined.scales)
+            if progress is not None:
+                progress(1)
+            if new_fit is None:
+                self._reject(out, m, back)
+            else:
+                kept.append((m, positions, new_fit))
+        blob = first.blob
+        if back:  # rebuild without the rejected clusters: same grid, so survivors decode alike
+            final = encode_ordered(means[np.concatenate([k[0] for k in kept])], step, origin,
+                                   bits, level) if kept else None
+            if kept and (final is None or not np.array_equal(
+                    final.positions, np.concatenate([k[1] for k in kept]))):
+                return False
+            blob = final.blob if kept else b""
+        for i, (m, _, new_fit) in enumerate(kept):
+            self._accept(out, blob if i == 0 else b"", m, new_fit)
+        out.to_patch = _sorted_union(back)
+        return True
+
+    # ------------------------------------------------------------------------------ helpers
+    def _refit(self, cloud: GaussianCloud, order: np.ndarray, positions: np.ndarray,
+               fit: ClusterFit, scales: AttributeScales) -> ClusterFit | None:
+        """Models refitted on decoded positions, or None when the cluster must return to patch."""
         if len(order) < self.refine_config.s_min:
             return None
-        targets = coded_targets(cloud, order, sh_rest=sh_rest)
-        new_fit = refit_or_keep(fit, draco.positions, targets, self.refine_config, scales)
+        targets = coded_targets(cloud, order, sh_rest=self.refine_config.sh_rest_degree is not None)
+        new_fit = refit_or_keep(fit, positions, targets, self.refine_config, scales)
         if new_fit.mse_combined > self.refine_config.tau_max * self.config.tau_tolerance:
             return None
-        cluster = SketchCluster(draco.blob, len(order), new_fit.frame.center,
-                                new_fit.frame.half_extent, new_fit.models)
-        return cluster, new_fit, order, duplicates
+        return new_fit
+
+    @staticmethod
+    def _accept(out: SketchEncoding, blob: bytes, order: np.ndarray, fit: ClusterFit) -> None:
+        out.clusters.append(SketchCluster(blob, len(order), fit.frame.center,
+                                          fit.frame.half_extent, fit.models))
+        out.fits.append(fit)
+        out.sources.append(order)
+
+    @staticmethod
+    def _reject(out: SketchEncoding, members: np.ndarray, back: list[np.ndarray]) -> None:
+        out.stats["rejected_clusters"] += 1
+        out.stats["rejected_gaussians"] += len(members)
+        back.append(members)
+
+
+def _morton_sorted(members: np.ndarray, means: np.ndarray) -> np.ndarray:
+    """A cluster's members along a Morton curve, so consecutive deltas in the blob are small."""
+    return members[np.argsort(morton_codes(means[members]), kind="stable")]
+
+
+def _sorted_union(parts: list[np.ndarray]) -> np.ndarray:
+    return np.sort(np.concatenate(parts)) if parts else np.zeros(0, np.int64)

@@ -165,6 +165,7 @@ class PositionMode(enum.IntEnum):
     FLOAT16 = 0
     QUANT16 = 1
     FLOAT32 = 2
+    DRACO = 3
 
 
 # spec 7.2 - QUANT16 parameters: position = origin + q * step, per axis

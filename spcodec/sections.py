@@ -26,6 +26,7 @@ from .container import (
     PositionMode,
     SketchClustersPayload,
 )
+from .draco_io import decode_points
 from .errors import FormatError
 from .limits import Limits
 from .polynomial import MAX_DEGREE, monomial_count
@@ -35,7 +36,11 @@ from .polynomial import MAX_DEGREE, monomial_count
 
 @dataclass
 class SketchCluster:
-    """One encoded sketch cluster: Draco positions plus float16 polynomial models ([R-40])."""
+    """One encoded sketch cluster: its share of a Draco blob plus float16 polynomial models ([R-40]).
+
+    ``draco`` is the blob that starts with this cluster, or ``b""`` when the cluster's points
+    continue the previous cluster's blob ([R-47]).
+    """
 
     draco: bytes
     point_count: int
@@ -56,12 +61,25 @@ class SketchCluster:
 
 
 @dataclass
+class DracoRun:
+    """One Draco blob of SKETCH_POSITIONS and the consecutive clusters whose points it holds."""
+
+    start: int
+    stop: int
+    """Byte range of the blob in the SKETCH_POSITIONS payload."""
+    first_cluster: int
+    end_cluster: int
+    """Clusters first_cluster .. end_cluster - 1 share the blob, in that order."""
+    points: int
+
+
+@dataclass
 class SketchLayout:
     """The parsed cluster table: per-cluster counts, frames, degrees and byte ranges."""
 
     records: np.ndarray
     """Structured array with CLUSTER_DTYPE fields."""
-    draco_offsets: np.ndarray
+    runs: list[DracoRun]
     coefficient_offsets: np.ndarray
     """(clusters, 5) byte offsets of each model in the coefficient section (-1 where absent)."""
 
@@ -111,11 +129,12 @@ def parse_sketch(table: bytes, positions_length: int, coefficients_length: int,
     if count == 0:
         if gaussian_count or positions_length or coefficients_length:
             raise FormatError("an empty cluster table with non-empty sketch data", "bad-section")
-        return SketchLayout(rec, np.zeros(1, np.int64), np.zeros((0, 5), np.int64))
+        return SketchLayout(rec, [], np.zeros((0, 5), np.int64))
     if np.frombuffer(rec["reserved"].tobytes(), np.uint8).any():
         raise FormatError("a cluster record's reserved bytes are not zero", "reserved-nonzero")
-    if np.any(rec["point_count"] == 0) or np.any(rec["draco_length"] == 0):
-        raise FormatError("a cluster has zero points or an empty Draco blob", "bad-value")
+    if np.any(rec["point_count"] == 0) or rec["draco_length"][0] == 0:
+        raise FormatError("a cluster has zero points, or the first cluster starts no Draco blob",
+                          "bad-value")
     if not (np.isfinite(rec["center"]).all() and np.isfinite(rec["half_extent"]).all()
             and (rec["half_extent"] > 0).all()):
         raise FormatError("a cluster frame is not finite or has a non-positive half extent",
@@ -131,8 +150,8 @@ def parse_sketch(table: bytes, positions_length: int, coefficients_length: int,
     if int(rec["point_count"].sum(dtype=np.int64)) != gaussian_count:
         raise FormatError("cluster point counts do not add up to the sketch layer's Gaussian "
                           "count", "bad-section")
-    draco_offsets = np.concatenate([[0], np.cumsum(rec["draco_length"], dtype=np.int64)])
-    if draco_offsets[-1] != positions_length:
+    runs = draco_runs(rec)
+    if (runs[-1].stop if runs else 0) != positions_length:
         raise FormatError("Draco blob lengths do not add up to the SKETCH_POSITIONS length",
                           "bad-section")
     sizes = np.zeros((count, 5), np.int64)
@@ -145,7 +164,18 @@ def parse_sketch(table: bytes, positions_length: int, coefficients_length: int,
         raise FormatError("model sizes do not add up to the SKETCH_COEFFICIENTS length",
                           "bad-section")
     offsets = np.where(sizes > 0, flat[:-1].reshape(count, 5), -1)
-    return SketchLayout(rec, draco_offsets, offsets)
+    return SketchLayout(rec, runs, offsets)
+
+
+def draco_runs(records: np.ndarray) -> list[DracoRun]:
+    """Group clusters into blobs: a non-zero draco_length starts a blob, zero continues it."""
+    lengths = records["draco_length"].astype(np.int64)
+    counts = records["point_count"].astype(np.int64)
+    starts = np.flatnonzero(lengths > 0)
+    ends = np.append(starts[1:], len(records))
+    byte_ends = np.cumsum(lengths[starts])
+    return [DracoRun(int(b - lengths[a]), int(b), int(a), int(e), int(counts[a:e].sum()))
+            for a, e, b in zip(starts, ends, byte_ends)]
 
 
 def read_coefficients(coefficients: bytes, layout: SketchLayout, cluster: int,
@@ -261,16 +291,24 @@ def parse_indices(raw: bytes, count: int, codebooks: list[Codebook]) -> dict[Pat
 
 @dataclass
 class PatchPositions:
-    """Positions of one patch layer in one of the three stored modes ([R-53]..[R-55])."""
+    """Positions of one patch layer in one of the four stored modes ([R-53]..[R-55])."""
 
     mode: PositionMode
     data: np.ndarray
-    """(N, 3): float16 for FLOAT16, uint16 quantized values for QUANT16, float32 for FLOAT32."""
+    """(N, 3): float16 for FLOAT16, uint16 quantized values for QUANT16, float32 for FLOAT32 and
+    for DRACO (the decoded positions)."""
     origin: np.ndarray | None = None
     step: np.ndarray | None = None
+    blob: bytes | None = None
+    """The Draco blob (DRACO mode)."""
 
     def __len__(self) -> int:
         return int(self.data.shape[0])
+
+    @classmethod
+    def draco(cls, blob: bytes, decoded: np.ndarray) -> "PatchPositions":
+        """A Draco point cloud whose decode order is the layer's order, with its decoded points."""
+        return cls(PositionMode.DRACO, np.asarray(decoded, np.float32), blob=bytes(blob))
 
     @classmethod
     def float16(cls, xyz: np.ndarray) -> "PatchPositions":
@@ -319,6 +357,9 @@ def _undo_zigzag_delta(z: np.ndarray) -> np.ndarray:
 
 def pack_positions(pos: PatchPositions) -> bytes:
     """Raw PATCH_POSITIONS payload; columns stored x, then y, then z ([R-53])."""
+    if pos.mode == PositionMode.DRACO:
+        return PatchPositionsPayload.build(dict(mode=int(pos.mode), reserved=b"\0\0\0",
+                                                params=None, data=pos.blob))
     if pos.mode == PositionMode.QUANT16:
         data = _zigzag_delta(pos.data).T.astype("<u2")
         params = dict(origin=[float(v) for v in pos.origin], step=[float(v) for v in pos.step])
@@ -338,6 +379,11 @@ def parse_positions(raw: bytes, count: int) -> PatchPositions:
         mode = PositionMode(payload.mode)
     except ValueError:
         raise FormatError(f"unknown patch position mode {payload.mode}", "bad-value") from None
+    if mode == PositionMode.DRACO:
+        if count == 0 and not payload.data:
+            return PatchPositions(mode, np.zeros((0, 3), np.float32), blob=b"")
+        points = decode_points(payload.data, count, "patch positions")
+        return PatchPositions(mode, points, blob=bytes(payload.data))
     width = 4 if mode == PositionMode.FLOAT32 else 2
     if len(payload.data) != count * 3 * width:
         raise FormatError(f"PATCH_POSITIONS holds {len(payload.data)} data bytes for {count} "

@@ -131,6 +131,34 @@ def random_cluster(rng: np.random.Generator, sh_degree: int, points: int | None 
     return SketchCluster(blob, decoded.shape[0], ((lo + hi) / 2).astype(np.float32), half, models)
 
 
+def random_sketch(rng: np.random.Generator, sh_degree: int, clusters: int) -> list[SketchCluster]:
+    """Random clusters; runs of consecutive clusters sometimes share one order-preserving blob."""
+    import DracoPy
+
+    out = [random_cluster(rng, sh_degree) for _ in range(clusters)]
+    start = 0
+    while start < len(out):
+        run = int(rng.integers(1, 4))
+        members = out[start:start + run]
+        if len(members) > 1:
+            parts = [np.asarray(DracoPy.decode(m.draco).points, np.float32).reshape(-1, 3)
+                     for m in members]
+            blob = DracoPy.encode(np.concatenate(parts), quantization_bits=20,
+                                  compression_level=1, preserve_order=True)
+            shared = np.asarray(DracoPy.decode(blob).points, np.float32).reshape(-1, 3)
+            rows = 0
+            for m, part in zip(members, parts):
+                mine = shared[rows:rows + len(part)]
+                rows += len(part)
+                lo, hi = mine.min(axis=0), mine.max(axis=0)
+                m.center = ((lo + hi) / 2).astype(np.float32)
+                m.half_extent = np.maximum((hi - lo) / 2, 1e-3).astype(np.float32)
+                m.draco = b""
+            members[0].draco = blob
+        start += run
+    return out
+
+
 def random_codebooks(rng: np.random.Generator, sh_degree: int) -> list[Codebook]:
     """One random codebook per patch attribute, with random entry dimensions and sizes."""
     books = []
@@ -149,8 +177,15 @@ def random_patch_layer(rng: np.random.Generator, codebooks: list[Codebook], n: i
                        mode: PositionMode | None = None) -> PatchLayer:
     """A patch layer with random positions (in a random mode) and valid random indices."""
     xyz = rng.uniform(-20, 20, (n, 3))
-    mode = PositionMode(int(rng.integers(0, 3))) if mode is None else mode
-    if mode == PositionMode.QUANT16:
+    mode = PositionMode(int(rng.integers(0, 4))) if mode is None else mode
+    if mode == PositionMode.DRACO:
+        import DracoPy
+        blob = DracoPy.encode(xyz.astype(np.float32), quantization_bits=16, compression_level=1,
+                              preserve_order=True) if n else b""
+        decoded = np.asarray(DracoPy.decode(blob).points, np.float32).reshape(-1, 3) if n \
+            else np.zeros((0, 3), np.float32)
+        positions = PatchPositions.draco(blob, decoded)
+    elif mode == PositionMode.QUANT16:
         positions = PatchPositions.quant16(xyz, 40.0 / 65535)
     elif mode == PositionMode.FLOAT16:
         positions = PatchPositions.float16(xyz)
@@ -167,7 +202,7 @@ def random_encoded_scene(seed: int = 0, clusters: int = 4, patch_layers: int = 2
     """A valid :class:`EncodedScene` of random components (format tests, conformance, demo)."""
     rng = np.random.default_rng(seed)
     sh = int(rng.integers(0, 4)) if sh_degree is None else sh_degree
-    sketch = [random_cluster(rng, sh) for _ in range(clusters)]
+    sketch = random_sketch(rng, sh, clusters)
     books = random_codebooks(rng, sh) if patch_layers else []
     layers = [random_patch_layer(rng, books, int(rng.integers(0, patch_size + 1)))
               for _ in range(patch_layers)]

@@ -24,7 +24,7 @@ from spcodec.sections import (
     parse_sketch,
     read_coefficients,
 )
-from spcodec.synthetic import random_cluster, random_codebooks
+from spcodec.synthetic import random_cluster, random_codebooks, random_sketch
 
 LIMITS = Limits()
 
@@ -39,14 +39,17 @@ def _code(fn) -> str:
 @given(st.integers(0, 3), st.integers(0, 6), st.integers(0, 2**31 - 1))
 def test_sketch_tables_round_trip(sh_degree, clusters, seed):
     rng = np.random.default_rng(seed)
-    cls = [random_cluster(rng, sh_degree) for _ in range(clusters)]
+    cls = random_sketch(rng, sh_degree, clusters)
     table, draco, coeffs = pack_sketch(cls, sh_degree)
     layout = parse_sketch(table, len(draco), len(coeffs), sum(c.point_count for c in cls),
                           sh_degree, LIMITS)
     assert len(layout.records) == clusters
+    assert [draco[r.start:r.stop] for r in layout.runs] == [c.draco for c in cls if c.draco]
+    for run in layout.runs:  # a run is its first cluster and those continuing it
+        assert cls[run.first_cluster].draco and not any(
+            c.draco for c in cls[run.first_cluster + 1:run.end_cluster])
+        assert run.points == sum(c.point_count for c in cls[run.first_cluster:run.end_cluster])
     for i, cl in enumerate(cls):
-        start, stop = layout.draco_offsets[i], layout.draco_offsets[i + 1]
-        assert draco[start:stop] == cl.draco
         for attr in SketchAttribute:
             got = read_coefficients(coeffs, layout, i, attr, sh_degree)
             if attr in cl.models:
@@ -73,6 +76,7 @@ def _one_cluster_tables(**record_changes):
     (dict(degrees=[1, 1, 1, 1, 12]), "bad-value"),
     (dict(reserved=b"\x01\0\0"), "reserved-nonzero"),
     (dict(draco_length=1), "bad-section"),
+    (dict(draco_length=0), "bad-value"),          # the first cluster must start a blob
 ])
 def test_cluster_record_checks(change, code):
     table, nd, nc, count = _one_cluster_tables(**change)
@@ -151,7 +155,13 @@ def test_index_checks():
 def test_positions_round_trip(mode, n, seed):
     rng = np.random.default_rng(seed)
     xyz = rng.uniform(-100, 100, (n, 3))
-    if mode == PositionMode.QUANT16:
+    if mode == PositionMode.DRACO:
+        import DracoPy
+        blob = DracoPy.encode(xyz.astype(np.float32), quantization_bits=18, preserve_order=True) \
+            if n else b""
+        pos = PatchPositions.draco(blob, np.asarray(DracoPy.decode(blob).points).reshape(-1, 3)
+                                   if n else np.zeros((0, 3)))
+    elif mode == PositionMode.QUANT16:
         pos = PatchPositions.quant16(xyz, 200.0 / 65535)
     elif mode == PositionMode.FLOAT16:
         pos = PatchPositions.float16(xyz)
@@ -159,7 +169,7 @@ def test_positions_round_trip(mode, n, seed):
         pos = PatchPositions.float32(xyz)
     back = parse_positions(pack_positions(pos), n)
     assert back.mode == mode
-    np.testing.assert_array_equal(back.data, pos.data)          # lossless storage
+    np.testing.assert_array_equal(back.data, pos.data)          # lossless storage (of the codes)
     np.testing.assert_array_equal(back.decode(), pos.decode())
     if mode == PositionMode.QUANT16 and n:                       # error bound of the mode
         assert np.abs(back.decode() - xyz).max() <= 200.0 / 65535 / 2 + 1e-4
@@ -183,3 +193,13 @@ def test_position_checks():
     huge = PatchPositions(PositionMode.QUANT16, np.zeros((1, 3), np.uint16),
                           np.zeros(3, np.float32), np.full(3, 1e38, np.float32))
     assert _code(lambda: parse_positions(pack_positions(huge), 1)) == "bad-value"
+
+
+def test_draco_positions_must_hold_the_layer_count():
+    import DracoPy
+    blob = DracoPy.encode(np.random.default_rng(0).normal(size=(10, 3)).astype(np.float32),
+                          preserve_order=True)
+    raw = pack_positions(PatchPositions.draco(blob, np.zeros((10, 3))))
+    assert len(parse_positions(raw, 10)) == 10
+    assert _code(lambda: parse_positions(raw, 11)) == "draco-failed"
+    assert _code(lambda: parse_positions(raw[:-3], 10)) == "draco-failed"

@@ -31,72 +31,23 @@ from __future__ import annotations
 import argparse
 import ctypes
 import multiprocessing as mp
-import os
 import sys
 import time
 import tracemalloc
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
-
-from spcodec import GaussianCloud, read_ply
+from scenes import REAL, TILED, data_dir, load_scene  # bench/ is on sys.path
 from spcodec.encoder.categorize import (
-    CategorizeConfig, MultiCriteriaDBSCAN, direction_distance, principal_axes,
+    CategorizeConfig,
+    MultiCriteriaDBSCAN,
+    direction_distance,
+    principal_axes,
 )
 from spcodec.encoder.neighbors import iter_radius_pairs
+
+from spcodec import GaussianCloud, read_ply
 from spcodec.synthetic import make_scene
-
-REAL = {
-    "fourth_st": "pdal_fourth_st_spz/fourth_st_inria.ply",
-    "biker": "playcanvas_biker_guitar/biker_from_spz_inria.ply",
-    "donut": "v3dg_donut_mipsplatting/fused.ply",
-}
-TILED = {"500k": 500_000, "1M": 1_000_000}
-
-
-def data_dir() -> Path:
-    """``$SPCODEC_DATA``, else the first ``shared/data`` found beside or above the repository."""
-    if "SPCODEC_DATA" in os.environ:
-        return Path(os.environ["SPCODEC_DATA"])
-    repo = Path(__file__).resolve().parents[1]
-    for parent in repo.parents:
-        if (parent / "shared" / "data").is_dir():
-            return parent / "shared" / "data"
-    return repo.parent / "shared" / "data"
-
-
-def tiled_scene(base: GaussianCloud, n: int, seed: int = 0) -> GaussianCloud:
-    """``n`` Gaussians: jittered copies of ``base`` side by side on a grid, the last one partial.
-
-    Copies do not overlap (grid pitch 1.05 x the bounding box), so the local density, and hence
-    the per-Gaussian work of the neighbour search, is that of the real scene. Each copy's centres
-    are jittered by a quarter of the median nearest-neighbour spacing and its colours slightly, so
-    copies are not bit-identical (which would make ties and duplicates unrealistically common).
-    """
-    rng = np.random.default_rng(seed)
-    means = base.means.astype(np.float64)
-    extent = means.max(axis=0) - means.min(axis=0)
-    spacing = float(np.median(cKDTree(means).query(means, k=[2])[0]))
-    copies = -(-n // len(base))
-    side = int(np.ceil(copies ** (1 / 3)))
-    parts = []
-    for k in range(copies):
-        cell = np.array([k % side, (k // side) % side, k // (side * side)])
-        part = base.subset(slice(None))
-        part.means = (means + cell * extent * 1.05
-                      + rng.normal(0, 0.25 * spacing, means.shape)).astype(np.float32)
-        part.sh_dc = (part.sh_dc + rng.normal(0, 0.01, part.sh_dc.shape)).astype(np.float32)
-        parts.append(part)
-    return GaussianCloud.concat(parts).subset(slice(0, n))
-
-
-def load_scene(name: str) -> GaussianCloud:
-    """A named benchmark scene (see the module docstring)."""
-    if name in REAL:
-        return read_ply(data_dir() / REAL[name])
-    return tiled_scene(read_ply(data_dir() / REAL["fourth_st"]), TILED[name])
 
 
 def _status_mib(field: str) -> float:

@@ -18,29 +18,19 @@ import dataclasses
 import os
 import time
 from collections import Counter
-from pathlib import Path
 
 import numpy as np
+from scenes import data_dir  # bench/ is on sys.path
+from spcodec.encoder.refine import RefineConfig, RefineResult, refine
 
 from spcodec.attributes import SketchAttribute
 from spcodec.cloud import GaussianCloud
 from spcodec.ply import read_ply
-from spcodec.encoder.refine import RefineConfig, RefineResult, refine
 
 SCENES = {
     "fourth_st": "pdal_fourth_st_spz/fourth_st_inria.ply",
     "biker": "playcanvas_biker_guitar/biker_from_spz_inria.ply",
 }
-
-
-def data_dir() -> Path:
-    """$SPCODEC_DATA, else the first shared/data found beside the repository or one level up
-    (a git worktree sits one folder deeper than the main checkout)."""
-    if "SPCODEC_DATA" in os.environ:
-        return Path(os.environ["SPCODEC_DATA"])
-    repo = Path(__file__).resolve().parents[1]
-    candidates = [repo.parent / "shared" / "data", repo.parent.parent / "shared" / "data"]
-    return next((c for c in candidates if c.is_dir()), candidates[0])
 
 
 def dbscan_labels(cloud: GaussianCloud, min_samples: int = 10) -> tuple[np.ndarray, float]:

@@ -1,0 +1,80 @@
+"""The gsplat backend (CUDA only): the same view and output conventions as the torch renderer.
+
+gsplat is imported lazily so that spcodec works without it. Written against gsplat 1.5.x's
+``gsplat.rasterization``: activated scales and opacities, SH coefficients (N, K, 3) with
+``sh_degree``, world-to-camera ``viewmats`` and intrinsics ``Ks`` per camera, ``eps2d`` the 2D
+low-pass, ``rasterize_mode`` classic or antialiased. Differences from the torch renderer that
+gsplat does not let us configure: its per-fragment alpha clamp is 0.999 (``max_alpha`` is ignored)
+and it stops a pixel when ``T * (1 - alpha) <= 1e-4`` rather than ``< 1e-4``.
+"""
+
+from __future__ import annotations
+
+import importlib
+from types import ModuleType
+
+import torch
+
+from spcodec.encoder.cameras import Camera
+
+from .params import GaussianParams
+from .settings import BLUR_VARIANCE, RenderResult, RenderSettings
+
+GSPLAT_MAX_ALPHA = 0.999
+"""The alpha clamp hard-coded in gsplat's CUDA rasterizer."""
+
+
+def gsplat_problem() -> str | None:
+    """Why the gsplat backend cannot run here (one line), or None when it can."""
+    if not torch.cuda.is_available():
+        return f"torch.cuda.is_available() is False (torch {torch.__version__})"
+    try:
+        importlib.import_module("gsplat")
+    except Exception as exc:  # ImportError, or a broken CUDA extension build
+        return f"gsplat does not import ({type(exc).__name__}: {exc}); pip install gsplat"
+    return None
+
+
+def _gsplat() -> ModuleType:
+    problem = gsplat_problem()
+    if problem is not None:
+        raise RuntimeError(f"the gsplat backend is unavailable: {problem}")
+    return importlib.import_module("gsplat")
+
+
+def render_gsplat(params: GaussianParams, camera: Camera, settings: RenderSettings
+                  ) -> RenderResult:
+    """Render one view with ``gsplat.rasterization`` (params must live on a CUDA device)."""
+    gsplat = _gsplat()
+    if params.device.type != "cuda":
+        raise RuntimeError(f"the gsplat backend needs CUDA tensors, parameters are on "
+                           f"{params.device}")
+    device, dtype = params.device, torch.float32
+    degree = params.sh_degree if settings.sh_degree is None else min(settings.sh_degree,
+                                                                      params.sh_degree)
+    viewmats = torch.as_tensor(camera.world_to_camera, dtype=dtype, device=device)[None]
+    ks = torch.as_tensor(camera.intrinsics, dtype=dtype, device=device)[None]
+    background = torch.tensor([settings.background], dtype=dtype, device=device)
+    colors, alphas, meta = gsplat.rasterization(
+        means=params.means.to(dtype),
+        quats=params.quats.to(dtype),
+        scales=torch.exp(params.scales.to(dtype)),
+        opacities=torch.sigmoid(params.opacities.to(dtype)),
+        colors=params.sh[:, :(degree + 1) ** 2].to(dtype),
+        viewmats=viewmats,
+        Ks=ks,
+        width=camera.width,
+        height=camera.height,
+        near_plane=settings.near_plane,
+        eps2d=BLUR_VARIANCE,
+        sh_degree=degree,
+        packed=False,
+        backgrounds=background,
+        render_mode="RGB",
+        rasterize_mode="antialiased" if settings.antialiased else "classic",
+    )
+    radii = meta["radii"][0]
+    visible = (radii > 0).any(dim=-1) if radii.dim() == 2 else radii > 0
+    return RenderResult(image=colors[0].to(params.means.dtype),
+                        alpha=alphas[0, :, :, 0].to(params.means.dtype),
+                        visible=visible)

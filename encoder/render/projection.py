@@ -121,12 +121,14 @@ def project(params: GaussianParams, camera: Camera, settings: RenderSettings) ->
     means_cam = params.means @ cam.rotation.T + cam.translation
     in_front = torch.nonzero(means_cam[:, 2].detach() > settings.near_plane).squeeze(1)
 
-    mean2d, cov2d_raw = _ewa_project(
-        means_cam[in_front], params.quats[in_front], params.scales[in_front], cam)
+    front = ((lambda t: t) if len(in_front) == len(params)  # noqa: E731
+             else (lambda t: t[in_front]))
+    mean2d, cov2d_raw = _ewa_project(front(means_cam), front(params.quats),
+                                     front(params.scales), cam)
     a_raw, b, c_raw = cov2d_raw.unbind(1)
     a, c = a_raw + BLUR_VARIANCE, c_raw + BLUR_VARIANCE
     det = a * c - b * b
-    opacity = torch.sigmoid(params.opacities[in_front])
+    opacity = torch.sigmoid(front(params.opacities))
     if settings.antialiased:
         det_raw = a_raw * c_raw - b * b
         opacity = opacity * torch.sqrt((det_raw / det).clamp_min(1e-30))
@@ -143,20 +145,23 @@ def project(params: GaussianParams, camera: Camera, settings: RenderSettings) ->
         keep = torch.nonzero(ok).squeeze(1)
         boxes = torch.stack([col0, col1, row0, row1], dim=1)[keep]
 
+    everything = len(keep) == len(params)  # whole scene in view: skip gathers and scatters
+    pick = (lambda t: t) if everything else (lambda t: t[keep])  # noqa: E731
     ids = in_front[keep]
-    a, b, c, det = a[keep], b[keep], c[keep], det[keep]
+    a, b, c, det = pick(a), pick(b), pick(c), pick(det)
     conics = torch.stack([c / det, -b / det, a / det], dim=1)
     degree = params.sh_degree if settings.sh_degree is None else min(settings.sh_degree,
                                                                       params.sh_degree)
-    means = params.means[ids]
+    means = params.means if everything else params.means[ids]
+    sh = params.sh if everything else params.sh[ids]
     dirs = means - cam.position
     dirs = dirs / dirs.norm(dim=1, keepdim=True)
-    colors = sh_to_rgb(params.sh[ids], dirs, degree)
+    colors = sh_to_rgb(sh, dirs, degree)
     return Projection(
         ids=ids,
-        means2d=mean2d[keep],
+        means2d=pick(mean2d),
         conics=conics,
-        opacities=opacity[keep],
+        opacities=pick(opacity),
         colors=colors,
         depths=means_cam[ids, 2].detach(),
         pixel_boxes=boxes,
@@ -185,8 +190,9 @@ def _ewa_project(means_cam: torch.Tensor, quats: torch.Tensor, scales: torch.Ten
     jw0 = (cam.fx * inv_z)[:, None] * (w[0] - tx[:, None] * w[2])
     jw1 = (cam.fy * inv_z)[:, None] * (w[1] - ty[:, None] * w[2])
     rs = quat_to_rotmat(quats) * torch.exp(scales)[:, None, :]  # R S: columns scaled
-    b0 = torch.einsum("nk,nkj->nj", jw0, rs)
-    b1 = torch.einsum("nk,nkj->nj", jw1, rs)
+    # row vector times matrix by broadcasting: batched 1x3 @ 3x3 matmuls are slow on the CPU
+    b0 = (jw0[:, :, None] * rs).sum(dim=1)
+    b1 = (jw1[:, :, None] * rs).sum(dim=1)
     cov = torch.stack([(b0 * b0).sum(1), (b0 * b1).sum(1), (b1 * b1).sum(1)], dim=1)
     mean2d = torch.stack([cam.fx * x * inv_z + cam.cx, cam.fy * y * inv_z + cam.cy], dim=1)
     return mean2d, cov

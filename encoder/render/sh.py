@@ -85,7 +85,8 @@ def eval_sh(sh: torch.Tensor, dirs: torch.Tensor, degree: int) -> torch.Tensor:
     if degree == 0:
         return SH_C0 * sh[:, 0, :]
     basis = sh_basis(dirs, degree)
-    return torch.einsum("nk,nkc->nc", basis, sh[:, :count, :])
+    # broadcast-multiply and sum: batched (1 x K) @ (K x 3) products are 5x slower on the CPU
+    return (basis[:, :, None] * sh[:, :count, :]).sum(dim=1)
 
 
 def sh_to_rgb(sh: torch.Tensor, dirs: torch.Tensor, degree: int) -> torch.Tensor:

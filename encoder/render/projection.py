@@ -72,7 +72,8 @@ class Projection:
     entries (a, b, c) of the inverse blurred 2D covariance [[a, b], [b, c]]; ``opacities`` (M,)
     after sigmoid (and compensation); ``colors`` (M, 3); ``depths`` (M,) camera z (detached);
     ``pixel_boxes`` (M, 4) int64 inclusive pixel ranges (col0, col1, row0, row1) clipped to the
-    image, each non-empty.
+    image, each non-empty; ``extents`` (M,) the Mahalanobis radius of the 1/255 contour
+    (detached).
     """
 
     ids: torch.Tensor
@@ -82,6 +83,7 @@ class Projection:
     colors: torch.Tensor
     depths: torch.Tensor
     pixel_boxes: torch.Tensor
+    extents: torch.Tensor
 
 
 def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
@@ -165,6 +167,7 @@ def project(params: GaussianParams, camera: Camera, settings: RenderSettings) ->
         colors=colors,
         depths=means_cam[ids, 2].detach(),
         pixel_boxes=boxes,
+        extents=pick(extent),
     )
 
 

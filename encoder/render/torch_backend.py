@@ -23,7 +23,8 @@ def render_torch(params: GaussianParams, camera: Camera, settings: RenderSetting
     ``"autograd"`` lets autograd store the blend's intermediates (tests and measurements only).
     """
     proj = project(params, camera, settings)
-    bins = bin_gaussians(proj.pixel_boxes, proj.depths, camera.width, camera.height,
+    bins = bin_gaussians(proj.pixel_boxes, proj.depths, proj.means2d.detach(),
+                         proj.conics.detach(), proj.extents, camera.width, camera.height,
                          settings.tile_size)
     background = torch.tensor(settings.background, dtype=params.means.dtype,
                               device=params.device)

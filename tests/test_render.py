@@ -372,7 +372,60 @@ def test_culling_near_plane_and_off_screen() -> None:
     assert near.visible.tolist()[:2] == [True, True]
 
 
+def test_empty_and_fully_culled_scenes_render_the_background() -> None:
+    cam = axis_camera(20, 12, 20.0)
+    bg = (0.25, 0.5, 0.75)
+    empty = GaussianParams.from_cloud(GaussianCloud.zeros(0, 1), dtype=torch.float64)
+    behind = make_params([[0, 0, -1.0], [0.1, 0, -2.0]], [[0.1]] * 2, [0.9] * 2, [[1, 0, 0]] * 2,
+                         requires_grad=True)
+    for params in (empty, behind):
+        out = render(params, cam, settings(background=bg), backend="torch")
+        torch.testing.assert_close(out.image, torch.tensor(bg, dtype=torch.float64).expand(
+            12, 20, 3))
+        assert float(out.alpha.detach().abs().max()) == 0.0 and not out.visible.any()
+    out = render(behind, cam, settings(background=bg), backend="torch")
+    out.image.sum().backward()
+    assert all(t.grad is None or float(t.grad.abs().max()) == 0.0 for t in behind.tensors())
+
+
+def test_non_finite_gaussians_are_culled_not_propagated() -> None:
+    cam = axis_camera(24, 24, 30.0)
+    good = [[0.0, 0.0, 2.0]]
+    params = make_params(good * 4, [[0.05]] * 4, [0.8] * 4, [[0.2, 0.9, 0.4]] * 4,
+                         requires_grad=False)
+    with torch.no_grad():
+        params.means[1, 0] = float("nan")
+        params.scales[2, 1] = float("inf")
+        params.quats[3] = 0.0  # zero quaternion: no rotation defined
+    out = render(params, cam, settings(), backend="torch")
+    assert out.visible.tolist() == [True, False, False, False]
+    single = render(make_params(good, [0.05], [0.8], [[0.2, 0.9, 0.4]]), cam, settings(),
+                    backend="torch")
+    torch.testing.assert_close(out.image, single.image)
+
+
+def test_sh_degree_setting_truncates_the_colour_model() -> None:
+    params = random_scene(40, 3, seed=12)
+    truncated = GaussianParams(params.means, params.scales, params.quats, params.opacities,
+                               params.sh[:, :4].contiguous())
+    cam = axis_camera(32, 24, 30.0)
+    capped = render(params, cam, settings(sh_degree=1), backend="torch").image
+    torch.testing.assert_close(capped, render(truncated, cam, settings(), backend="torch").image)
+    full = render(params, cam, settings(), backend="torch").image
+    assert float((full - capped).abs().max()) > 1e-3
+
+
 # ---------------------------------------------------------------------------------- API
+def test_params_validate_shapes() -> None:
+    params = random_scene(3, 1, seed=0)
+    with pytest.raises(ValueError, match="quats"):
+        GaussianParams(params.means, params.scales, params.quats[:, :3], params.opacities,
+                       params.sh)
+    with pytest.raises(ValueError, match="SH"):
+        GaussianParams(params.means, params.scales, params.quats, params.opacities,
+                       params.sh[:, :3])
+
+
 def test_params_round_trip_through_cloud() -> None:
     g = np.random.default_rng(1)
     cloud = GaussianCloud(g.normal(size=(5, 3)), g.normal(size=(5, 3)), g.normal(size=(5, 4)),
@@ -425,7 +478,9 @@ def test_torch_renderer_matches_gsplat(antialiased: bool) -> None:
     diff = (ref.image.cpu() - ours.image.detach()).abs()
     assert float(diff.mean()) < 1e-4 and float(diff.max()) < 1e-2
     torch.testing.assert_close(ref.alpha.cpu(), ours.alpha.detach(), atol=1e-2, rtol=0)
-    assert torch.equal(ref.visible.cpu(), ours.visible)
+    # gsplat keeps Gaussians whose integer-rounded box touches the image even when it covers no
+    # pixel centre; we cull those, so a few border Gaussians may differ
+    assert float((ref.visible.cpu() != ours.visible).float().mean()) < 0.01
     w = torch.rand(cam.height, cam.width, 3, generator=torch.Generator().manual_seed(0))
     (ref.image * w.cuda()).sum().backward()
     (ours.image * w).sum().backward()

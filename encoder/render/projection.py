@@ -147,9 +147,10 @@ def project(params: GaussianParams, camera: Camera, settings: RenderSettings) ->
         keep = torch.nonzero(ok).squeeze(1)
         boxes = torch.stack([col0, col1, row0, row1], dim=1)[keep]
 
-    everything = len(keep) == len(params)  # whole scene in view: skip gathers and scatters
-    pick = (lambda t: t) if everything else (lambda t: t[keep])  # noqa: E731
+    # whole scene in view (the common case): skip the gathers and their backward scatters
+    pick = (lambda t: t) if len(keep) == len(in_front) else (lambda t: t[keep])  # noqa: E731
     ids = in_front[keep]
+    everything = len(ids) == len(params)
     a, b, c, det = pick(a), pick(b), pick(c), pick(det)
     conics = torch.stack([c / det, -b / det, a / det], dim=1)
     degree = params.sh_degree if settings.sh_degree is None else min(settings.sh_degree,

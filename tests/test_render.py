@@ -7,11 +7,13 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
+from spcodec import read_ply
 from spcodec.cloud import GaussianCloud
 from spcodec.encoder.cameras import Camera
 from spcodec.encoder.render import (GaussianParams, RenderSettings, render, render_image,
@@ -205,6 +207,27 @@ def test_dense_scene_matches_brute_force_reference(antialiased: bool) -> None:
     out = render(params, cam, cfg, backend="torch")
     np.testing.assert_allclose(out.image.numpy(), image, atol=1e-10)
     np.testing.assert_allclose(out.alpha.numpy(), alpha, atol=1e-10)
+
+
+DONUT = Path("/work/shared/data/v3dg_donut_mipsplatting/fused.ply")
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not DONUT.exists(), reason=f"real scene {DONUT} not present")
+def test_real_scene_matches_brute_force_reference() -> None:
+    # 45k trained Gaussians (tiny, clamped, overlapping) through the whole pipeline in float64
+    cloud = read_ply(DONUT)
+    params = GaussianParams.from_cloud(cloud, dtype=torch.float64)
+    lo, hi = np.percentile(cloud.means, [1, 99], axis=0)
+    centre, radius = (lo + hi) / 2, np.linalg.norm(hi - lo) / 2
+    eye = centre + np.array([0.4, -0.8, 0.6]) / np.linalg.norm([0.4, -0.8, 0.6]) * 2.2 * radius
+    cam = Camera.look_at(eye, centre, np.array([0.0, 0.0, 1.0]), 48, 40, math.radians(50))
+    cfg = settings(background=(1.0, 1.0, 1.0))
+    image, alpha, done = reference_render(params, cam, cfg)
+    assert (alpha > 0.9).mean() > 0.2 and done.any()
+    out = render(params, cam, cfg, backend="torch")
+    np.testing.assert_allclose(out.image.numpy(), image, atol=1e-9)
+    np.testing.assert_allclose(out.alpha.numpy(), alpha, atol=1e-9)
 
 
 # ------------------------------------------------------------------------------- tiling

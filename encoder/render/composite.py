@@ -38,6 +38,7 @@ oracle the tests compare the hand-written backward with.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Callable, Iterator
 
 import torch
@@ -102,6 +103,7 @@ def pack_gaussians(means2d: torch.Tensor, conics: torch.Tensor, opacities: torch
     return torch.cat([table, table.new_zeros(_FIELDS, 1)], dim=1)
 
 
+@lru_cache(maxsize=None)
 def _below(value: float, dtype: torch.dtype) -> float:
     """The largest number of ``dtype`` below ``value``: ``threshold(x, _below(v), 0)`` keeps
     exactly the x >= v (F.threshold keeps x > its threshold)."""
@@ -168,7 +170,9 @@ def _fragments_fast(g: torch.Tensor, gid: torch.Tensor, px: torch.Tensor, py: to
     stop = _below(TRANSMITTANCE_THRESHOLD, dtype)
     t_next = F.threshold(t_incl[:, :, -1], stop, 0.0)
     if bool((t_next == 0).any()):
-        # some pixel stopped: zero its later weights; t_incl / (1 - alpha) == t_excl
+        # some pixel stopped: zero its later weights; t_incl / (1 - alpha) == t_excl. (Its
+        # products keep shrinking within this chunk and could in principle reach denormals
+        # after ~17 more opaque fragments; none occurred in the benchmark scenes.)
         weight = F.threshold(t_incl, stop, 0.0).mul_(alpha).div_(one_minus)
     else:
         weight = t_excl * alpha

@@ -11,6 +11,7 @@ and it stops a pixel when ``T * (1 - alpha) <= 1e-4`` rather than ``< 1e-4``.
 from __future__ import annotations
 
 import importlib
+from functools import lru_cache
 from types import ModuleType
 
 import torch
@@ -24,14 +25,17 @@ GSPLAT_MAX_ALPHA = 0.999
 """The alpha clamp hard-coded in gsplat's CUDA rasterizer."""
 
 
+@lru_cache(maxsize=1)
 def gsplat_problem() -> str | None:
-    """Why the gsplat backend cannot run here (one line), or None when it can."""
+    """Why the gsplat backend cannot run here (one line), or None when it can (cached: neither
+    CUDA nor the installed packages change within a process)."""
     if not torch.cuda.is_available():
         return f"torch.cuda.is_available() is False (torch {torch.__version__})"
     try:
         importlib.import_module("gsplat")
     except Exception as exc:  # ImportError, or a broken CUDA extension build
-        return f"gsplat does not import ({type(exc).__name__}: {exc}); pip install gsplat"
+        detail = " ".join(str(exc).split())[:200]
+        return f"gsplat does not import ({type(exc).__name__}: {detail}); pip install gsplat"
     return None
 
 

@@ -24,6 +24,16 @@ from spcodec.encoder.render.sh import SH_C0, sh_basis
 from spcodec.encoder.render.torch_backend import render_torch
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _single_thread():
+    """These renders are tiny; on a shared machine extra OpenMP threads only add barrier stalls
+    (seen: 10x slower runs). Restored afterwards so other test modules keep their setting."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 # ----------------------------------------------------------------------------------- helpers
 def axis_camera(width: int = 64, height: int = 48, focal: float = 50.0, cx: float | None = None,
                 cy: float | None = None) -> Camera:

@@ -26,10 +26,11 @@ import sys
 import time
 from pathlib import Path
 
+DATA = Path(os.environ.get("SPCODEC_DATA", "/work/shared/data"))
 SCENES = {
-    "donut": "/work/shared/data/v3dg_donut_mipsplatting/fused.ply",
-    "fourth_st": "/work/shared/data/pdal_fourth_st_spz/fourth_st_inria.ply",
-    "biker": "/work/shared/data/playcanvas_biker_guitar/biker_from_spz_inria.ply",
+    "donut": DATA / "v3dg_donut_mipsplatting" / "fused.ply",
+    "fourth_st": DATA / "pdal_fourth_st_spz" / "fourth_st_inria.ply",
+    "biker": DATA / "playcanvas_biker_guitar" / "biker_from_spz_inria.ply",
 }
 
 
@@ -157,9 +158,11 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         f, fb = r["forward"], r["forward_backward"]
-        print(f"| {r['scene']} | {r['gaussians']:,} | {r['sh_degree']} | {r['size']}x{r['size']} "
-              f"| {r['coverage']:.0%} | {f[0]:.3f} / {f[1]:.3f} | {fb[0]:.3f} / {fb[1]:.3f} | {r['peak_mib']:.0f} "
-              f"| {r['peak_mib'] - r['base_mib']:.0f} |")
+        cells = [r["scene"], f"{r['gaussians']:,}", str(r["sh_degree"]),
+                 f"{r['size']}x{r['size']}", f"{r['coverage']:.0%}",
+                 f"{f[0]:.3f} / {f[1]:.3f}", f"{fb[0]:.3f} / {fb[1]:.3f}",
+                 f"{r['peak_mib']:.0f}", f"{r['peak_mib'] - r['base_mib']:.0f}"]
+        print("| " + " | ".join(cells) + " |")
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@ rules, tiling invariance, SH, the public API and (when CUDA + gsplat exist) agre
 from __future__ import annotations
 
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -219,11 +220,12 @@ def test_dense_scene_matches_brute_force_reference(antialiased: bool) -> None:
     np.testing.assert_allclose(out.alpha.numpy(), alpha, atol=1e-10)
 
 
-DONUT = Path("/work/shared/data/v3dg_donut_mipsplatting/fused.ply")
+DONUT = (Path(os.environ.get("SPCODEC_DATA", "/work/shared/data"))
+         / "v3dg_donut_mipsplatting" / "fused.ply")
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not DONUT.exists(), reason=f"real scene {DONUT} not present")
+@pytest.mark.skipif(not DONUT.exists(), reason=f"real scene {DONUT} not present (set SPCODEC_DATA)")
 def test_real_scene_matches_brute_force_reference() -> None:
     # 45k trained Gaussians (tiny, clamped, overlapping) through the whole pipeline in float64
     cloud = read_ply(DONUT)

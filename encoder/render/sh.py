@@ -81,7 +81,8 @@ def eval_sh(sh: torch.Tensor, dirs: torch.Tensor, degree: int) -> torch.Tensor:
     """
     count = sh_coeff_count(degree)
     if sh.shape[1] < count:
-        raise ValueError(f"SH degree {degree} needs {count} coefficients, the tensor has {sh.shape[1]}")
+        raise ValueError(f"SH degree {degree} needs {count} coefficients, "
+                         f"the tensor has {sh.shape[1]}")
     if degree == 0:
         return SH_C0 * sh[:, 0, :]
     basis = sh_basis(dirs, degree)

@@ -497,6 +497,45 @@ def test_format_layer_and_decoder_do_not_import_torch() -> None:
 
 
 # ------------------------------------------------------------------------------ gsplat
+def test_gsplat_arguments_follow_its_documented_contract() -> None:
+    # runs without CUDA: a stand-in for gsplat.rasterization checks the 1.5.x argument contract,
+    # undoes the activations and renders with our renderer; the wrapped result must then equal
+    # the torch renderer's exactly (catches activation, shape and output-layout slips)
+    from spcodec.encoder.render.gsplat_backend import gsplat_arguments, result_from_gsplat
+
+    params = random_scene(50, 3, seed=9, dtype=torch.float32, spread=1.8)
+    cam = Camera.look_at(np.array([0.1, -0.2, -0.4]), np.array([0.0, 0.0, 3.0]),
+                         np.array([0.0, -1.0, 0.0]), 40, 30, math.radians(50))
+    cfg = settings(background=(0.1, 0.5, 0.9), antialiased=True, sh_degree=2)
+
+    def fake_rasterization(means, quats, scales, opacities, colors, viewmats, Ks, width, height,
+                           near_plane, eps2d, sh_degree, packed, backgrounds, render_mode,
+                           rasterize_mode):
+        n = len(means)
+        assert viewmats.shape == (1, 4, 4) and Ks.shape == (1, 3, 3)
+        assert backgrounds.shape == (1, 3) and eps2d == 0.3 and not packed
+        assert colors.shape == (n, (sh_degree + 1) ** 2, 3) and sh_degree == 2
+        assert bool((scales > 0).all()) and bool(((opacities > 0) & (opacities < 1)).all())
+        assert render_mode == "RGB" and rasterize_mode == "antialiased"
+        w2c = viewmats[0].double().numpy()
+        k = Ks[0].double().numpy()
+        camera = Camera(width, height, k[0, 0], k[1, 1], k[0, 2], k[1, 2], w2c)
+        raw = GaussianParams(means, torch.log(scales), quats, torch.logit(opacities), colors)
+        out = render_torch(raw, camera, RenderSettings(
+            background=tuple(backgrounds[0].tolist()), near_plane=near_plane,
+            antialiased=rasterize_mode == "antialiased"))
+        radii = torch.zeros(1, n, 2, dtype=torch.int32)
+        radii[0, out.visible] = 3
+        return out.image[None], out.alpha[None, :, :, None], {"radii": radii}
+
+    result = result_from_gsplat(*fake_rasterization(**gsplat_arguments(params, cam, cfg)),
+                                dtype=torch.float32)
+    ours = render_torch(params, cam, cfg)
+    torch.testing.assert_close(result.image, ours.image, atol=1e-6, rtol=0)
+    torch.testing.assert_close(result.alpha, ours.alpha, atol=1e-6, rtol=0)
+    assert torch.equal(result.visible, ours.visible) and 0 < int(ours.visible.sum()) < 50
+
+
 @pytest.mark.skipif(gsplat_problem() is not None,
                     reason=f"gsplat backend unavailable: {gsplat_problem()}")
 @pytest.mark.parametrize("antialiased", [False, True])

@@ -53,32 +53,49 @@ def render_gsplat(params: GaussianParams, camera: Camera, settings: RenderSettin
     if params.device.type != "cuda":
         raise RuntimeError(f"the gsplat backend needs CUDA tensors, parameters are on "
                            f"{params.device}")
+    colors, alphas, meta = gsplat.rasterization(**gsplat_arguments(params, camera, settings))
+    return result_from_gsplat(colors, alphas, meta, params.means.dtype)
+
+
+def gsplat_arguments(params: GaussianParams, camera: Camera, settings: RenderSettings
+                     ) -> dict:
+    """Keyword arguments of ``gsplat.rasterization`` (1.5.x) for one camera.
+
+    gsplat takes activated scales and opacities, unnormalised wxyz quaternions, SH coefficients
+    (N, K, 3) with ``sh_degree`` (it uses the first (d+1)^2), and batched cameras: world-to-camera
+    ``viewmats`` (1, 4, 4), intrinsics ``Ks`` (1, 3, 3), ``backgrounds`` (1, 3).
+    """
     device, dtype = params.device, torch.float32
     degree = params.sh_degree if settings.sh_degree is None else min(settings.sh_degree,
                                                                       params.sh_degree)
-    viewmats = torch.as_tensor(camera.world_to_camera, dtype=dtype, device=device)[None]
-    ks = torch.as_tensor(camera.intrinsics, dtype=dtype, device=device)[None]
-    background = torch.tensor([settings.background], dtype=dtype, device=device)
-    colors, alphas, meta = gsplat.rasterization(
+    return dict(
         means=params.means.to(dtype),
         quats=params.quats.to(dtype),
         scales=torch.exp(params.scales.to(dtype)),
         opacities=torch.sigmoid(params.opacities.to(dtype)),
         colors=params.sh[:, :(degree + 1) ** 2].to(dtype),
-        viewmats=viewmats,
-        Ks=ks,
+        viewmats=torch.as_tensor(camera.world_to_camera, dtype=dtype, device=device)[None],
+        Ks=torch.as_tensor(camera.intrinsics, dtype=dtype, device=device)[None],
         width=camera.width,
         height=camera.height,
         near_plane=settings.near_plane,
         eps2d=BLUR_VARIANCE,
         sh_degree=degree,
         packed=False,
-        backgrounds=background,
+        backgrounds=torch.tensor([settings.background], dtype=dtype, device=device),
         render_mode="RGB",
         rasterize_mode="antialiased" if settings.antialiased else "classic",
     )
+
+
+def result_from_gsplat(colors: torch.Tensor, alphas: torch.Tensor, meta: dict,
+                       dtype: torch.dtype) -> RenderResult:
+    """Our RenderResult from gsplat's (1, H, W, 3) colours, (1, H, W, 1) alphas and metadata.
+
+    ``meta["radii"]`` is (1, N, 2) int in gsplat 1.5 (per-axis), (1, N) before; a Gaussian is
+    visible when any radius is positive.
+    """
     radii = meta["radii"][0]
     visible = (radii > 0).any(dim=-1) if radii.dim() == 2 else radii > 0
-    return RenderResult(image=colors[0].to(params.means.dtype),
-                        alpha=alphas[0, :, :, 0].to(params.means.dtype),
+    return RenderResult(image=colors[0].to(dtype), alpha=alphas[0, :, :, 0].to(dtype),
                         visible=visible)

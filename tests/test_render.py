@@ -503,7 +503,7 @@ def test_gsplat_arguments_follow_its_documented_contract() -> None:
     # the torch renderer's exactly (catches activation, shape and output-layout slips)
     from spcodec.encoder.render.gsplat_backend import gsplat_arguments, result_from_gsplat
 
-    params = random_scene(50, 3, seed=9, dtype=torch.float32, spread=1.8)
+    params = random_scene(50, 3, seed=9, dtype=torch.float32, spread=3.0)
     cam = Camera.look_at(np.array([0.1, -0.2, -0.4]), np.array([0.0, 0.0, 3.0]),
                          np.array([0.0, -1.0, 0.0]), 40, 30, math.radians(50))
     cfg = settings(background=(0.1, 0.5, 0.9), antialiased=True, sh_degree=2)

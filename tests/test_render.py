@@ -19,7 +19,7 @@ from spcodec.cloud import GaussianCloud
 from spcodec.encoder.cameras import Camera
 from spcodec.encoder.render import (GaussianParams, RenderSettings, render, render_image,
                                     resolve_backend, resolve_device)
-from spcodec.encoder.render.gsplat_backend import gsplat_problem
+from spcodec.encoder.render.gsplat_backend import GSPLAT_MAX_ALPHA, gsplat_problem
 from spcodec.encoder.render.projection import project
 from spcodec.encoder.render.sh import SH_C0, sh_basis
 from spcodec.encoder.render.torch_backend import render_torch
@@ -544,7 +544,8 @@ def test_torch_renderer_matches_gsplat(antialiased: bool) -> None:
                           opacity_range=(0.05, 0.99), scale_range=(0.005, 0.05))
     cam = Camera.look_at(np.array([0.2, -0.3, -0.5]), np.array([0.0, 0.0, 3.0]),
                          np.array([0.0, -1.0, 0.0]), 160, 120, math.radians(50))
-    cfg = RenderSettings(background=(0.2, 0.4, 0.6), antialiased=antialiased, max_alpha=0.999)
+    cfg = RenderSettings(background=(0.2, 0.4, 0.6), antialiased=antialiased,
+                         max_alpha=GSPLAT_MAX_ALPHA)
     cuda = GaussianParams(*(t.cuda().requires_grad_(True) for t in params.tensors()))
     cpu = GaussianParams(*(t.clone().requires_grad_(True) for t in params.tensors()))
     ref = render(cuda, cam, cfg, backend="gsplat")

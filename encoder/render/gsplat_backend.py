@@ -4,8 +4,11 @@ gsplat is imported lazily so that spcodec works without it. Written against gspl
 ``gsplat.rasterization``: activated scales and opacities, SH coefficients (N, K, 3) with
 ``sh_degree``, world-to-camera ``viewmats`` and intrinsics ``Ks`` per camera, ``eps2d`` the 2D
 low-pass, ``rasterize_mode`` classic or antialiased. Differences from the torch renderer that
-gsplat does not let us configure: its per-fragment alpha clamp is 0.999 (``max_alpha`` is ignored)
-and it stops a pixel when ``T * (1 - alpha) <= 1e-4`` rather than ``< 1e-4``.
+gsplat does not let us configure: its per-fragment alpha clamp is 0.999 (``max_alpha`` is ignored;
+set ``max_alpha=GSPLAT_MAX_ALPHA`` for a like-for-like torch render), it stops a pixel when
+``T * (1 - alpha) <= 1e-4`` rather than ``< 1e-4``, and it keeps (``visible``) Gaussians whose
+integer-rounded box touches the image without covering a pixel centre. ``tile_size``,
+``chunk_size`` and ``batch_elements`` only concern the torch renderer.
 """
 
 from __future__ import annotations

@@ -1,0 +1,26 @@
+"""Differentiable 3DGS rendering for spcodec: a pure-PyTorch tiled renderer and a gsplat backend.
+
+Public API (the only names other modules should rely on)::
+
+    params = GaussianParams.from_cloud(cloud, device, requires_grad=True)
+    result = render(params, camera, RenderSettings(background=(1, 1, 1)), backend="auto")
+    result.image (H, W, 3), result.alpha (H, W), result.visible (N,)
+    img = render_image(cloud, camera)      # numpy float32 (H, W, 3) in [0, 1]
+    dev = resolve_device("auto")           # cuda when CUDA + gsplat work, else cpu
+
+This package is the only part of spcodec (with the encoder) that imports torch.
+"""
+
+from .api import render, render_image, resolve_backend, resolve_device
+from .params import GaussianParams
+from .settings import RenderResult, RenderSettings
+
+__all__ = [
+    "GaussianParams",
+    "RenderResult",
+    "RenderSettings",
+    "render",
+    "render_image",
+    "resolve_backend",
+    "resolve_device",
+]

@@ -5,24 +5,29 @@ rules, tiling invariance, SH, the public API and (when CUDA + gsplat exist) agre
 from __future__ import annotations
 
 import math
-import os
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-
-from spcodec import read_ply
-from spcodec.cloud import GaussianCloud
+from conftest import real_file
 from spcodec.encoder.cameras import Camera
-from spcodec.encoder.render import (GaussianParams, RenderSettings, render, render_image,
-                                    resolve_backend, resolve_device)
+from spcodec.encoder.render import (
+    GaussianParams,
+    RenderSettings,
+    render,
+    render_image,
+    resolve_backend,
+    resolve_device,
+)
 from spcodec.encoder.render.gsplat_backend import GSPLAT_MAX_ALPHA, gsplat_problem
 from spcodec.encoder.render.projection import project
 from spcodec.encoder.render.sh import SH_C0, sh_basis
 from spcodec.encoder.render.torch_backend import render_torch
+
+from spcodec import read_ply
+from spcodec.cloud import GaussianCloud
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -220,15 +225,10 @@ def test_dense_scene_matches_brute_force_reference(antialiased: bool) -> None:
     np.testing.assert_allclose(out.alpha.numpy(), alpha, atol=1e-10)
 
 
-DONUT = (Path(os.environ.get("SPCODEC_DATA", "/work/shared/data"))
-         / "v3dg_donut_mipsplatting" / "fused.ply")
-
-
 @pytest.mark.slow
-@pytest.mark.skipif(not DONUT.exists(), reason=f"real scene {DONUT} not present (set SPCODEC_DATA)")
 def test_real_scene_matches_brute_force_reference() -> None:
     # 45k trained Gaussians (tiny, clamped, overlapping) through the whole pipeline in float64
-    cloud = read_ply(DONUT)
+    cloud = read_ply(real_file("v3dg_donut_mipsplatting/fused.ply"))
     params = GaussianParams.from_cloud(cloud, dtype=torch.float64)
     lo, hi = np.percentile(cloud.means, [1, 99], axis=0)
     centre, radius = (lo + hi) / 2, np.linalg.norm(hi - lo) / 2

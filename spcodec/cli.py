@@ -110,6 +110,8 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, help="the .spc file to write")
     p.add_argument("--no-retrain", action="store_true",
                    help="encode without retraining the patch Gaussians (required in this version)")
+    p.add_argument("--preset", choices=["lowrate", "balanced", "highrate"], default="balanced",
+                   help="rate/quality operating point (default: balanced)")
     p.add_argument("--codec", choices=["zlib", "zstd"], default="zlib",
                    help="section codec (zlib: every decoder reads it; zstd: faster to decode)")
     p.add_argument("--gzip", action="store_true", help="wrap the file in gzip")
@@ -128,6 +130,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
     import dataclasses
 
     from .encoder.pipeline import EncoderConfig, encode
+    from .encoder.presets import preset_config
     from .encoder.progress import StageReporter, print_summary
     from .fileio import atomic_write, check_writable
     from .ply import read_ply
@@ -137,8 +140,9 @@ def cmd_encode(args: argparse.Namespace) -> int:
     check_writable(args.output)
     if args.stats:
         check_writable(args.stats)
-    config = EncoderConfig(seed=args.seed, n_jobs=args.jobs, use_sketch=not args.no_sketch,
-                           codec=args.codec, gzip=args.gzip)
+    config = preset_config(args.preset, EncoderConfig(
+        seed=args.seed, n_jobs=args.jobs, use_sketch=not args.no_sketch, codec=args.codec,
+        gzip=args.gzip))
     if args.patch_layers is not None:
         _check_positive(patch_layers=args.patch_layers)
         config.patch = dataclasses.replace(config.patch, layers=args.patch_layers)

@@ -145,3 +145,15 @@ def test_real_scene_encode_decode(scene):
     assert result.stats["bytes"] < cloud.nbytes() / 5
     for layer in spcodec.inspect(result.data).to_json()["layers"]:  # every prefix decodes
         assert len(spcodec.decode(result.data[:layer["end_offset"]])) > 0 or layer["index"] == 0
+
+
+def test_defaults_are_the_balanced_preset_and_presets_order_by_size():
+    from spcodec.encoder.presets import PRESETS, preset_config
+    default, balanced = EncoderConfig(), preset_config("balanced")
+    assert default.patch.entry_dims == balanced.patch.entry_dims
+    assert default.refine.tau_max == balanced.refine.tau_max
+    scene = make_scene(8, curves=4, per_curve=200, blobs=1500)
+    sizes = {name: len(encode(scene.cloud, preset_config(name, FAST)).data) for name in PRESETS}
+    assert sizes["lowrate"] < sizes["balanced"] < sizes["highrate"]
+    with pytest.raises(ValueError, match="unknown preset"):
+        preset_config("ultra")

@@ -263,7 +263,7 @@ def test_sh_rest_model_is_optional_and_reduces_its_error():
     scene = make_scene(seed=8, curves=1, per_curve=500, blobs=0, sh_degree=3)
     targets = coded_targets(scene.cloud, sh_rest=True)
     pos = scene.cloud.means
-    without = fit_cluster(pos, targets, RefineConfig())
+    without = fit_cluster(pos, targets, RefineConfig(sh_rest_degree=None))
     assert A.SH_REST not in without.models and A.SH_REST not in without.degrees
     with_rest = fit_cluster(pos, targets, RefineConfig(sh_rest_degree=2))
     rest = with_rest.models[A.SH_REST]

@@ -1,0 +1,52 @@
+"""Named operating points of the no-retrain encoder: ``--preset lowrate|balanced|highrate``.
+
+The presets differ in how finely the patch codebooks split each attribute (entry dimensions) and in
+how readily clusters become sketch (``tau_max``). Measured against renders of the original at
+8 held-out views of 400x400 (``spcodec eval --reference``), sizes in bytes, on 2026-11-22:
+
+============  ====================  ====================  ====================  ===============
+scene         lowrate               balanced              highrate              SPZ (splat-tr.)
+============  ====================  ====================  ====================  ===============
+fourth_st     1.18 MB, 35.9 dB      1.47 MB, 37.4 dB      2.24 MB, 53.1 dB      3.14 MB, 85 dB
+biker         0.87 MB, 36.8 dB      1.27 MB, 46.6 dB      1.46 MB, 47.0 dB      2.24 MB, 100 dB
+donut         0.35 MB, 28.5 dB      0.48 MB, 40.7 dB      0.56 MB, 42.1 dB      0.65 MB, 48.5 dB
+============  ====================  ====================  ====================  ===============
+
+(fourth_st and biker were decoded from SPZ, so SPZ re-encodes them almost exactly.) ``docs/RESULTS.md``
+has the full, current table; this one records why the defaults are what they are.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from .pipeline import EncoderConfig
+
+_SH_BANDS = {"SH_BAND_1": 9, "SH_BAND_2": 15, "SH_BAND_3": 21}
+_SH_TRIPLETS = {"SH_BAND_1": 3, "SH_BAND_2": 3, "SH_BAND_3": 3}
+
+PRESETS: dict[str, dict] = {
+    # Smallest files: whole-vector codebooks everywhere and more sketch. Quality depends on the
+    # scene: fine on large Gaussians, poor on many small ones (donut 28.5 dB).
+    "lowrate": dict(entry_dims={"SCALE": 3, "ROTATION": 4, "OPACITY": 1, "COLOR_DC": 3,
+                                **_SH_BANDS}, tau_max=0.3),
+    # The default: >= 37 dB on every shared scene at about half of SPZ's size.
+    "balanced": dict(entry_dims={"SCALE": 1, "ROTATION": 2, "OPACITY": 1, "COLOR_DC": 3,
+                                 **_SH_BANDS}, tau_max=0.1),
+    # Near-transparent: per-channel colour and one index per RGB SH coefficient (>= 42 dB).
+    "highrate": dict(entry_dims={"SCALE": 1, "ROTATION": 2, "OPACITY": 1, "COLOR_DC": 1,
+                                 **_SH_TRIPLETS}, tau_max=0.1),
+}
+
+
+def preset_config(name: str, base: EncoderConfig | None = None) -> EncoderConfig:
+    """``base`` (default: a fresh EncoderConfig) with the preset's settings applied."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}: use one of {', '.join(PRESETS)}")
+    base = base or EncoderConfig()
+    values = PRESETS[name]
+    return dataclasses.replace(
+        base,
+        patch=dataclasses.replace(base.patch, entry_dims=dict(values["entry_dims"])),
+        refine=dataclasses.replace(base.refine, tau_max=values["tau_max"]),
+    )

@@ -15,8 +15,8 @@ import os
 import time
 
 from scenes import REAL, data_dir, load_scene  # bench/ is on sys.path
-
 from spcodec.encoder.pipeline import EncoderConfig, encode
+
 from spcodec.ply import ply_dtype
 
 OWN_SPZ = {"fourth_st": "pdal_fourth_st_spz/fourth_st.spz",

@@ -18,7 +18,6 @@ from functools import lru_cache
 from types import ModuleType
 
 import torch
-
 from spcodec.encoder.cameras import Camera
 
 from .params import GaussianParams

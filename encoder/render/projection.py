@@ -27,7 +27,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-
 from spcodec.encoder.cameras import Camera
 
 from .params import GaussianParams

@@ -313,9 +313,10 @@ def _blend_backward(table: torch.Tensor, bins: TileBins, config: BlendConfig,
                            g_batch[:, :, 0], g_batch[:, :, 1], g_batch[:, :, 2]], dim=1)
         prefix = table.new_zeros(len(batch.tiles), pixels)
         for rows, frag in _steps(table, bins, batch, config, _fragments_fast):
-            pick = lambda t: t.index_select(0, rows)  # noqa: E731
-            grad_pairs = _pair_gradients(frag, pick(g_batch), pick(lhs), pick(rest), prefix,
-                                         rows, pick(centres), config)
+            g_rows, lhs_rows, rest_rows, centre_rows = (
+                t.index_select(0, rows) for t in (g_batch, lhs, rest, centres))
+            grad_pairs = _pair_gradients(frag, g_rows, lhs_rows, rest_rows, prefix, rows,
+                                         centre_rows, config)
             grad.index_add_(1, frag.gid.reshape(-1), grad_pairs.reshape(_FIELDS, -1))
     return grad
 

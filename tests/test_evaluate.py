@@ -1,0 +1,124 @@
+"""Evaluation and the eval/render commands: self-comparison, sensitivity, determinism, outputs."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import spcodec
+from spcodec.cli import main
+from spcodec.encoder.cameras import Camera
+from spcodec.encoder.evaluate import EvalConfig, evaluate_against_dataset, evaluate_against_reference
+from spcodec.encoder.images import read_image, write_png
+from spcodec.encoder.render import render_image
+from spcodec.synthetic import make_scene
+
+SMALL = EvalConfig(views=3, resolution=96, device="cpu")
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return make_scene(11, curves=6, per_curve=150, blobs=800).cloud
+
+
+def perturbed(cloud, sigma: float, seed: int = 0):
+    out = cloud.subset(slice(None))
+    rng = np.random.default_rng(seed)
+    out.sh_dc = (out.sh_dc + rng.normal(0, sigma, out.sh_dc.shape)).astype(np.float32)
+    out.means = (out.means + rng.normal(0, sigma * 0.01, out.means.shape)).astype(np.float32)
+    return out
+
+
+def test_a_model_against_itself_is_perfect(scene):
+    report = evaluate_against_reference(scene, scene, SMALL)
+    assert report.psnr >= 60 and report.ssim == pytest.approx(1.0)
+    doc = report.to_json()
+    json.dumps(doc, allow_nan=False)  # strict JSON: the PSNR cap keeps it finite
+    assert doc["views"] == 3 and len(doc["per_view"]) == 3 and doc["width"] == 96
+
+
+def test_larger_perturbations_score_lower(scene):
+    scores = [evaluate_against_reference(perturbed(scene, s), scene, SMALL)
+              for s in (0.02, 0.1, 0.4)]
+    psnrs = [r.psnr for r in scores]
+    assert psnrs[0] > psnrs[1] > psnrs[2] and psnrs[0] < 60
+    assert scores[0].ssim > scores[2].ssim
+
+
+def test_evaluation_is_deterministic(scene):
+    noisy = perturbed(scene, 0.1)
+    a = evaluate_against_reference(noisy, scene, SMALL).to_json()
+    b = evaluate_against_reference(noisy, scene, SMALL).to_json()
+    for doc in (a, b):
+        doc.pop("seconds")
+        for view in doc["per_view"]:
+            view.pop("render_seconds")
+    assert a == b
+
+
+def test_dataset_mode_scores_renders_against_images(tmp_path, scene):
+    """A tiny transforms.json dataset rendered from the scene itself: near-perfect scores."""
+    cams = [Camera.look_at([0, 0, -3.0], [0, 0, 0], [0, -1, 0], 64, 48, 0.9),
+            Camera.look_at([3.0, 0, 0], [0, 0, 0], [0, -1, 0], 64, 48, 0.9)]
+    frames = []
+    for i, cam in enumerate(cams):
+        write_png(tmp_path / f"r_{i}.png", render_image(scene, cam, device="cpu"))
+        c2w = np.linalg.inv(cam.world_to_camera) @ np.diag([1.0, -1.0, -1.0, 1.0])  # to OpenGL
+        frames.append({"file_path": f"r_{i}", "transform_matrix": c2w.tolist()})
+    doc = {"camera_angle_x": cams[0].fov_x, "frames": frames}
+    (tmp_path / "transforms_test.json").write_text(json.dumps(doc))
+    (tmp_path / "transforms_train.json").write_text(json.dumps(doc))
+    report = evaluate_against_dataset(scene, tmp_path, EvalConfig(device="cpu"))
+    assert len(report.views) == 2 and report.width == 64 and report.height == 48
+    assert report.psnr > 40  # only PNG rounding (8 bits) separates render and image
+    worse = evaluate_against_dataset(perturbed(scene, 0.3), tmp_path, EvalConfig(device="cpu"))
+    assert worse.psnr < report.psnr - 5
+
+
+def test_eval_cli_json_and_saved_renders(tmp_path, capsys, scene):
+    from spcodec.encoder.pipeline import EncoderConfig, encode
+    ply, spc, renders = tmp_path / "s.ply", tmp_path / "s.spc", tmp_path / "renders"
+    spcodec.write_ply(ply, scene)
+    spc.write_bytes(encode(scene, EncoderConfig()).data)
+    code = main(["eval", str(spc), "--reference", str(ply), "--json", "--views", "2",
+                 "--resolution", "64", "--device", "cpu", "--save-renders", str(renders)])
+    doc = json.loads(capsys.readouterr().out)
+    assert code == 0 and {"psnr", "ssim", "views", "per_view", "width", "height"} <= doc.keys()
+    assert doc["views"] == 2 and 20 < doc["psnr"] < 100 and doc["lpips"] is None
+    saved = sorted(renders.iterdir())
+    assert len(saved) == 2 and read_image(saved[0]).shape == (64, 3 * 64 + 2 * 4, 3)
+    code = main(["eval", str(spc), "--reference", str(ply), "--json", "--views", "2",
+                 "--resolution", "64", "--device", "cpu", "--max-layer", "0"])
+    sketch_only = json.loads(capsys.readouterr().out)
+    assert code == 0 and sketch_only["psnr"] < doc["psnr"]  # a prefix is a coarser model
+
+
+def test_render_cli_view_and_turntable(tmp_path, capsys, scene):
+    ply = tmp_path / "s.ply"
+    spcodec.write_ply(ply, scene)
+    assert main(["render", str(ply), "-o", str(tmp_path / "v.png"), "--resolution", "48",
+                 "--device", "cpu", "--view", "1", "--background", "1,1,1"]) == 0
+    image = read_image(tmp_path / "v.png")
+    assert image.shape == (48, 48, 3) and image.max() == 1.0 and image.min() < 0.9
+    assert main(["render", str(ply), "-o", str(tmp_path / "t.png"), "--resolution", "32",
+                 "--device", "cpu", "--turntable", "4"]) == 0
+    sheet = read_image(tmp_path / "t.png")
+    assert sheet.shape[0] > 32 and sheet.shape[1] > 32
+    capsys.readouterr()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["eval", "{ply}", "--reference", "{ply}", "--views", "0"], "--views must be at least 1"),
+    (["eval", "{ply}", "--reference", "{ply}", "--max-layer", "1"], "needs an .spc input"),
+    (["eval", "{ply}", "--dataset", "{tmp}/nowhere"], "nowhere"),
+    (["render", "{ply}", "-o", "{tmp}/x.png", "--background", "red"], "--background"),
+    (["render", "{ply}", "-o", "{tmp}/no/x.png"], "does not exist"),
+])
+def test_eval_and_render_errors_are_one_line(tmp_path, capsys, scene, argv, message):
+    ply = tmp_path / "s.ply"
+    spcodec.write_ply(ply, scene)
+    code = main([a.format(ply=ply, tmp=tmp_path) for a in argv])
+    err = capsys.readouterr().err
+    assert code != 0 and message in err and err.count("\n") == 1 and "Traceback" not in err

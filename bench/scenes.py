@@ -15,7 +15,10 @@ REAL = {
     "biker": "playcanvas_biker_guitar/biker_from_spz_inria.ply",
     "donut": "v3dg_donut_mipsplatting/fused.ply",
 }
-TILED = {"500k": 500_000, "1M": 1_000_000}
+TILED = {  # name: (real scene tiled, Gaussians)
+    "500k": ("fourth_st", 500_000), "1M": ("fourth_st", 1_000_000),
+    "biker-500k": ("biker", 500_000), "biker-1M": ("biker", 1_000_000),
+}
 
 
 def data_dir() -> Path:
@@ -58,4 +61,5 @@ def load_scene(name: str) -> GaussianCloud:
     """A named benchmark scene (see the module docstring)."""
     if name in REAL:
         return read_ply(data_dir() / REAL[name])
-    return tiled_scene(read_ply(data_dir() / REAL["fourth_st"]), TILED[name])
+    base, n = TILED[name]
+    return tiled_scene(read_ply(data_dir() / REAL[base]), n)

@@ -89,13 +89,18 @@ def make_scene(seed: int = 0, curves: int = 12, per_curve: int = 400, blobs: int
         ))
         ids.append(np.full(per_curve, c))
     q = rng.normal(size=(blobs, 4))
+    blob_means = rng.uniform(-0.8, 0.8, (blobs, 3)) * size
+    # Like trained scenes, blob colour varies smoothly over space (plus noise) and the higher SH
+    # bands are small (real captures: standard deviation ~0.05-0.07); uniformly random colours
+    # and SH would be harder to code than any real scene.
+    field_colour = np.sin(2.5 * blob_means / size + np.array([0.0, 1.0, 2.0])) * 1.2
     parts.append(GaussianCloud(
-        means=rng.uniform(-0.8, 0.8, (blobs, 3)) * size,
+        means=blob_means,
         scales=np.log(rng.uniform(0.01, 0.04, (blobs, 3)) * size),
         quats=q / np.linalg.norm(q, axis=1, keepdims=True),
         opacities=rng.uniform(-2.0, 2.0, blobs),
-        sh_dc=rng.uniform(-1.5, 1.5, (blobs, 3)),
-        sh_rest=rng.normal(0, 0.15, (blobs, k, 3)),
+        sh_dc=field_colour + rng.normal(0, 0.3, (blobs, 3)),
+        sh_rest=rng.normal(0, 0.05, (blobs, k, 3)),
     ))
     ids.append(np.full(blobs, -1))
     curve_id = np.concatenate(ids)

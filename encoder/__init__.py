@@ -1,1 +1,26 @@
-"""The spcodec reference encoder (extra ``encoder``): categorization, sketch and patch encoding."""
+"""The spcodec reference encoder (extra ``encoder``).
+
+``spcodec.encoder.encode(cloud, config)`` runs the no-retrain pipeline (categorize, refine, sketch,
+patch, write); :class:`EncoderConfig` holds every parameter; :func:`preset_config` gives the named
+operating points. The renderer, datasets, metrics and evaluation live in submodules. Names are
+resolved on first use, so importing a light submodule (``spcodec.encoder.cameras``) loads neither
+scikit-learn nor torch.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+_EXPORTS = {
+    "encode": "pipeline", "EncoderConfig": "pipeline", "EncodeResult": "pipeline",
+    "preset_config": "presets", "PRESETS": "presets",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        from importlib import import_module
+        return getattr(import_module(f".{_EXPORTS[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

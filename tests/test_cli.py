@@ -79,3 +79,18 @@ def test_console_script_entry_point(tmp_path):
     done = subprocess.run([sys.executable, "-m", "spcodec.cli", "info", str(tmp_path / "x.spc")],
                           capture_output=True, text=True)
     assert done.returncode == 1 and done.stderr.startswith("spcodec: error:")
+
+
+def test_a_missing_extra_is_named_in_one_line():
+    from spcodec.cli import describe_error
+    message = describe_error(ModuleNotFoundError("No module named 'torch'", name="torch"))
+    assert message == "this command needs 'torch': pip install 'spcodec[encoder]'"
+    assert "zstd" in describe_error(ModuleNotFoundError("x", name="zstandard"))
+
+
+def test_encoder_api_is_reachable_without_loading_heavy_modules_eagerly():
+    code = ("import sys, spcodec.encoder, spcodec.encoder.cameras; "
+            "assert 'sklearn' not in sys.modules and 'torch' not in sys.modules; "
+            "from spcodec.encoder import encode, EncoderConfig; assert callable(encode)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr

@@ -290,11 +290,9 @@ class StreamDecoder:
     _started: bool = False
     _next_layer: int = 0
     _decoder: _LayerDecoder | None = None
-    _raw_seen: int = 0
 
     def feed(self, chunk: bytes) -> list[DecodedLayer]:
         """Add bytes; return the layers completed by them (possibly none)."""
-        self._raw_seen += len(chunk)
         if not self._started:
             self._buffer += chunk
             if len(self._buffer) < 2:

@@ -37,7 +37,8 @@ import tracemalloc
 from dataclasses import replace
 
 import numpy as np
-from scenes import REAL, TILED, data_dir, load_scene  # bench/ is on sys.path
+
+from spcodec import GaussianCloud, read_ply
 from spcodec.encoder.categorize import (
     CategorizeConfig,
     MultiCriteriaDBSCAN,
@@ -45,9 +46,9 @@ from spcodec.encoder.categorize import (
     principal_axes,
 )
 from spcodec.encoder.neighbors import iter_radius_pairs
-
-from spcodec import GaussianCloud, read_ply
 from spcodec.synthetic import make_scene
+
+from scenes import REAL, TILED, data_dir, load_scene  # bench/ is on sys.path
 
 
 def _status_mib(field: str) -> float:

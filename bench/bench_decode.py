@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 from plyfile import PlyData
-from spcodec.encoder.patch import PatchConfig, PatchEncoder
 
 import spcodec
 from spcodec.container import Codec
+from spcodec.encoder.patch import PatchConfig, PatchEncoder
 from spcodec.writer import EncodedScene, WriteOptions, build_bitstream
 
 DEFAULT_SCENE = Path(os.environ.get("SPCODEC_DATA", Path(__file__).resolve().parents[2] /

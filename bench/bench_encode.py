@@ -14,10 +14,10 @@ import argparse
 import os
 import time
 
-from scenes import REAL, data_dir, load_scene  # bench/ is on sys.path
 from spcodec.encoder.pipeline import EncoderConfig, encode
-
 from spcodec.ply import ply_dtype
+
+from scenes import REAL, data_dir, load_scene  # bench/ is on sys.path
 
 OWN_SPZ = {"fourth_st": "pdal_fourth_st_spz/fourth_st.spz",
            "biker": "playcanvas_biker_guitar/biker.spz"}

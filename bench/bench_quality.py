@@ -22,12 +22,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from scenes import data_dir  # bench/ is on sys.path
-
 import spcodec
 from spcodec.encoder.evaluate import EvalConfig, evaluate_against_reference
 from spcodec.encoder.pipeline import encode
 from spcodec.encoder.presets import PRESETS, preset_config
+
+from scenes import data_dir  # bench/ is on sys.path
 
 SCENES = {  # name: (path under $SPCODEC_DATA, up axis, rendered antialiased)
     "fourth_st": ("pdal_fourth_st_spz/fourth_st_inria.ply", "-y", False),

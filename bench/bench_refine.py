@@ -20,12 +20,13 @@ import time
 from collections import Counter
 
 import numpy as np
-from scenes import data_dir  # bench/ is on sys.path
-from spcodec.encoder.refine import RefineConfig, RefineResult, refine
 
 from spcodec.attributes import SketchAttribute
 from spcodec.cloud import GaussianCloud
+from spcodec.encoder.refine import RefineConfig, RefineResult, refine
 from spcodec.ply import read_ply
+
+from scenes import data_dir  # bench/ is on sys.path
 
 SCENES = {
     "fourth_st": "pdal_fourth_st_spz/fourth_st_inria.ply",

@@ -37,6 +37,7 @@ SCENES = {
 def overview_camera(means, size: int, fov_deg: float = 50.0):
     """A camera outside the robust bounding box that sees all of it."""
     import numpy as np
+
     from spcodec.encoder.cameras import Camera
 
     lo, hi = np.percentile(means, [1, 99], axis=0)
@@ -58,10 +59,10 @@ def run_case(scene: str, size: int, reps: int, backend: str, backward: str,
              tile_size: int | None) -> dict:
     """Time one (scene, size) in this process; returns the measurements as a dict."""
     import torch
-    from spcodec.encoder.render import GaussianParams, RenderSettings, render
-    from spcodec.encoder.render.torch_backend import render_torch
 
     import spcodec
+    from spcodec.encoder.render import GaussianParams, RenderSettings, render
+    from spcodec.encoder.render.torch_backend import render_torch
 
     cloud = spcodec.read_ply(SCENES[scene])
     camera = overview_camera(cloud.means, size)

@@ -14,11 +14,11 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
-from spcodec.decoder import decode_layers, inspect
 
 from spcodec.attributes import decode_rotation
 from spcodec.cloud import GaussianCloud
 from spcodec.container import Codec
+from spcodec.decoder import decode_layers, inspect
 from spcodec.errors import FormatError, UsageError
 from spcodec.writer import EncodedScene, WriteOptions, build_bitstream
 

@@ -47,10 +47,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.linalg
-from spcodec.decoder.layers import evaluate_models, fill_cluster
 
 from spcodec.attributes import SketchAttribute, canonical_rotation, decode_rotation, encode_opacity
 from spcodec.cloud import SH_REST_COUNTS, GaussianCloud, sh_degree_for_rest_count
+from spcodec.decoder.layers import evaluate_models, fill_cluster
 from spcodec.polynomial import MAX_DEGREE, features, monomial_count, normalize_positions
 
 if TYPE_CHECKING:  # pragma: no cover - typing only; refine imports this module

@@ -14,9 +14,10 @@ from collections import deque
 
 import numpy as np
 import pytest
-from conftest import data_dir
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+
+from spcodec import GaussianCloud, read_ply
 from spcodec.encoder.categorize import (
     CategorizeConfig,
     MultiCriteriaDBSCAN,
@@ -25,9 +26,9 @@ from spcodec.encoder.categorize import (
     principal_axes,
 )
 from spcodec.encoder.neighbors import iter_radius_pairs, morton_order
-
-from spcodec import GaussianCloud, read_ply
 from spcodec.synthetic import make_scene
+
+from conftest import data_dir
 
 FOURTH_ST = "pdal_fourth_st_spz/fourth_st_inria.ply"
 PROPERTY = settings(deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
+
 from spcodec.encoder.datasets import (
     DatasetError,
     Distortion,
@@ -28,7 +29,6 @@ from spcodec.encoder.datasets.colmap_model import (
     read_points_binary,
 )
 from spcodec.encoder.datasets.llff import load_llff
-
 from spcodec.errors import UsageError
 
 DATA = Path(os.environ.get("SPCODEC_DATA", "/work/shared/data"))

@@ -7,15 +7,16 @@ import json
 
 import numpy as np
 import pytest
-from conftest import real_file
-from spcodec.encoder.patch import PatchConfig
-from spcodec.encoder.pipeline import EncoderConfig, encode
 
 import spcodec
 from spcodec.cli import main
 from spcodec.cloud import GaussianCloud
+from spcodec.encoder.patch import PatchConfig
+from spcodec.encoder.pipeline import EncoderConfig, encode
 from spcodec.errors import FormatError, UsageError
 from spcodec.synthetic import make_scene
+
+from conftest import real_file
 
 FAST = EncoderConfig(patch=PatchConfig(kmeans_iterations=10, kmeans_samples=20_000))
 

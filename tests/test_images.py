@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
+
 from spcodec.encoder.images import (
     ImageReadError,
     composite_alpha,

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from spcodec.encoder import metrics
 from spcodec.encoder.metrics import (
     PSNR_CAP_DB,

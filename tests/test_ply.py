@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import real_file, real_plys
 from plyfile import PlyData, PlyElement
 
 import spcodec
 from spcodec.cloud import SH_REST_COUNTS, GaussianCloud
 from spcodec.errors import FormatError
 from spcodec.ply import ply_dtype
+
+from conftest import real_file, real_plys
 
 
 def random_cloud(n: int, sh_degree: int, seed: int = 0) -> GaussianCloud:

@@ -11,6 +11,9 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+
+from spcodec.attributes import SketchAttribute as A
+from spcodec.attributes import canonical_rotation
 from spcodec.encoder.polyfit import (
     AttributeScales,
     align_quaternions,
@@ -25,9 +28,6 @@ from spcodec.encoder.polyfit import (
     remeasure,
 )
 from spcodec.encoder.refine import RefineConfig
-
-from spcodec.attributes import SketchAttribute as A
-from spcodec.attributes import canonical_rotation
 from spcodec.polynomial import evaluate, features, monomial_count
 from spcodec.synthetic import make_scene
 
@@ -181,6 +181,7 @@ def test_models_survive_draco_positions():
     positions make to a cluster sitting right at the threshold."""
     import DracoPy
     from scipy.optimize import linear_sum_assignment
+
     from spcodec.encoder.refine import refine
 
     scene = make_scene(seed=12, curves=6, per_curve=300, blobs=200, sh_degree=0)

@@ -9,6 +9,9 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+
+from spcodec.attributes import SketchAttribute as A
+from spcodec.cloud import GaussianCloud
 from spcodec.encoder.polyfit import (
     AttributeScales,
     attribute_errors,
@@ -26,9 +29,6 @@ from spcodec.encoder.refine import (
     iqr_outliers,
     refine,
 )
-
-from spcodec.attributes import SketchAttribute as A
-from spcodec.cloud import GaussianCloud
 from spcodec.polynomial import monomial_count
 from spcodec.synthetic import make_scene
 

@@ -11,7 +11,9 @@ import sys
 import numpy as np
 import pytest
 import torch
-from conftest import real_file
+
+from spcodec import read_ply
+from spcodec.cloud import GaussianCloud
 from spcodec.encoder.cameras import Camera
 from spcodec.encoder.render import (
     GaussianParams,
@@ -26,8 +28,7 @@ from spcodec.encoder.render.projection import project
 from spcodec.encoder.render.sh import SH_C0, sh_basis
 from spcodec.encoder.render.torch_backend import render_torch
 
-from spcodec import read_ply
-from spcodec.cloud import GaussianCloud
+from conftest import real_file
 
 
 @pytest.fixture(autouse=True, scope="module")

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import re
 
-from conftest import REPO
-
 from spcodec.errors import ERROR_CODES
+
+from conftest import REPO
 
 SPEC = (REPO / "spec" / "bitstream-v1.md").read_text(encoding="utf-8")
 DEFINED = set(re.findall(r"\*\*\[R-(\d+)\]\*\*", SPEC))

@@ -9,6 +9,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+import spcodec
+from spcodec.cloud import GaussianCloud
 from spcodec.encoder.cameras import Camera
 from spcodec.encoder.views import (
     ViewSamplingWarning,
@@ -18,9 +21,6 @@ from spcodec.encoder.views import (
     sample_views_report,
     view_coverage,
 )
-
-import spcodec
-from spcodec.cloud import GaussianCloud
 from spcodec.errors import UsageError
 
 DATA = Path(os.environ.get("SPCODEC_DATA", "/work/shared/data"))

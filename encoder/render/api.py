@@ -6,9 +6,9 @@ from typing import Literal
 
 import numpy as np
 import torch
-from spcodec.encoder.cameras import Camera
 
 from spcodec.cloud import GaussianCloud
+from spcodec.encoder.cameras import Camera
 
 from .gsplat_backend import gsplat_problem, render_gsplat
 from .params import GaussianParams

@@ -18,6 +18,7 @@ from functools import lru_cache
 from types import ModuleType
 
 import torch
+
 from spcodec.encoder.cameras import Camera
 
 from .params import GaussianParams

@@ -27,6 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
+
 from spcodec.encoder.cameras import Camera
 
 from .params import GaussianParams

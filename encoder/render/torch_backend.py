@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Literal
 
 import torch
+
 from spcodec.encoder.cameras import Camera
 
 from .binning import bin_gaussians

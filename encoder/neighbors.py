@@ -23,12 +23,10 @@ from typing import Iterator
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .morton import morton_order
+
 RADIUS_SLACK = 1e-6
 """Relative enlargement of the KD-tree query radius before the exact re-test (see module doc)."""
-
-_MORTON_BITS = 21
-"""Bits per axis of the Morton code (3 * 21 = 63 bits fit in an unsigned 64-bit integer)."""
-
 
 @dataclass(frozen=True)
 class RadiusPairs:
@@ -70,34 +68,6 @@ def rowwise_dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     a plain scalar reference computes bit-identical values.
     """
     return u[:, 0] * v[:, 0] + u[:, 1] * v[:, 1] + u[:, 2] * v[:, 2]
-
-
-def morton_order(points: np.ndarray) -> np.ndarray:
-    """A permutation sorting ``points`` (N, 3) along a Z-order curve of their bounding box.
-
-    Consecutive runs of the permutation are spatially compact, which makes chunked tree queries
-    cheap. Ties are broken by index (stable sort), so the order is deterministic.
-    """
-    n = points.shape[0]
-    if n == 0:
-        return np.zeros(0, np.int64)
-    lo = points.min(axis=0)
-    span = float(np.max(points.max(axis=0) - lo))
-    scale = ((1 << _MORTON_BITS) - 1) / span if span > 0 else 0.0
-    cells = np.floor((points - lo) * scale).astype(np.uint64)
-    code = np.zeros(n, np.uint64)
-    for axis in range(3):
-        code |= _spread_bits(cells[:, axis]) << np.uint64(axis)
-    return np.argsort(code, kind="stable").astype(np.int64)
-
-
-def _spread_bits(v: np.ndarray) -> np.ndarray:
-    """Insert two zero bits between consecutive bits of 21-bit integers (Morton interleaving)."""
-    v = v & np.uint64(0x1FFFFF)
-    for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
-                        (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)):
-        v = (v | (v << np.uint64(shift))) & np.uint64(mask)
-    return v
 
 
 def iter_radius_pairs(points: np.ndarray, radius: float, chunk_size: int,

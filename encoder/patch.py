@@ -21,6 +21,7 @@ from spcodec.sections import Codebook, PatchPositions
 from spcodec.writer import PatchLayer
 
 from .draco import encode_ordered, grid_for
+from .morton import morton_codes
 
 _ASSIGN_CHUNK = 1 << 15
 
@@ -88,25 +89,6 @@ def split_layers(score: np.ndarray, fractions: tuple[float, ...], layers: int) -
     bounds = np.round(np.cumsum(weights / weights.sum()) * len(score)).astype(np.int64)
     bounds[-1] = len(score)
     return [order[a:b] for a, b in zip(np.concatenate([[0], bounds[:-1]]), bounds)]
-
-
-def morton_codes(xyz: np.ndarray) -> np.ndarray:
-    """63-bit Morton codes of positions quantized to 21 bits per axis over their bounding box."""
-    lo, hi = xyz.min(axis=0), xyz.max(axis=0)
-    q = np.round((xyz - lo) / np.maximum(hi - lo, 1e-30) * ((1 << 21) - 1)).astype(np.uint64)
-    code = np.zeros(len(xyz), np.uint64)
-    for axis in range(3):
-        code |= _spread_bits(q[:, axis]) << np.uint64(axis)
-    return code
-
-
-def _spread_bits(v: np.ndarray) -> np.ndarray:
-    """Insert two zero bits between the low 21 bits of each value."""
-    v = v & np.uint64(0x1FFFFF)
-    for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
-                        (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)):
-        v = (v | (v << np.uint64(shift))) & np.uint64(mask)
-    return v
 
 
 def encode_positions(xyz: np.ndarray, mode: str, bits: int = 16) -> PatchPositions:

@@ -17,7 +17,7 @@ from spcodec.cloud import GaussianCloud
 from spcodec.sections import SketchCluster
 
 from .draco import encode_cluster, encode_ordered, grid_for, robust_diameter
-from .patch import morton_codes
+from .morton import morton_codes
 from .polyfit import AttributeScales, ClusterFit, coded_targets, refit_or_keep
 from .refine import RefineConfig, RefineResult
 

@@ -25,7 +25,8 @@ from spcodec.encoder.categorize import (
     categorize,
     principal_axes,
 )
-from spcodec.encoder.neighbors import iter_radius_pairs, morton_order
+from spcodec.encoder.morton import morton_order
+from spcodec.encoder.neighbors import iter_radius_pairs
 from spcodec.synthetic import make_scene
 
 from conftest import data_dir

@@ -28,6 +28,7 @@ from .morton import morton_order
 RADIUS_SLACK = 1e-6
 """Relative enlargement of the KD-tree query radius before the exact re-test (see module doc)."""
 
+
 @dataclass(frozen=True)
 class RadiusPairs:
     """Ordered pairs (row, col), row != col, whose centres are within the radius; one chunk's worth.

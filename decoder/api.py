@@ -14,13 +14,19 @@ from dataclasses import dataclass, field
 from typing import BinaryIO, Union
 
 from spcodec.cloud import GaussianCloud
-from spcodec.codecs import Gunzipped, gunzip, is_gzip, read_gzip_layer_ends
+from spcodec.codecs import Gunzipped, crc32, gunzip, is_gzip, read_gzip_layer_ends
 from spcodec.container import FIXED_HEADER_SIZE, GZIP_MAGIC, MAGIC, Codec, SectionType
-from spcodec.errors import FormatError, LimitError, TruncatedError, UsageError
+from spcodec.errors import ChecksumError, FormatError, LimitError, TruncatedError, UsageError
 from spcodec.limits import DEFAULT_LIMITS, Limits
 
-from .header import Header, header_bytes_needed, read_header
-from .layers import decode_patch_layer, decode_sketch_layer, read_codebooks, section_payload
+from .header import Header, Section, header_bytes_needed, read_header
+from .layers import (
+    fill_patch_layer,
+    fill_sketch_layer,
+    read_patch_layer,
+    read_sketch_layer,
+    section_payload,
+)
 
 Source = Union[str, os.PathLike, bytes, bytearray, memoryview, BinaryIO]
 
@@ -48,24 +54,32 @@ class DecodeResult:
 
 
 class _LayerDecoder:
-    """Decodes layers of one file in order, keeping the codebooks that layer 1 carries."""
+    """Reads and fills the layers of one file in order, keeping the codebooks of layer 1."""
 
     def __init__(self, header: Header, limits: Limits) -> None:
         self.header, self.limits, self.codebooks = header, limits, None
 
-    def decode(self, data: bytes | memoryview, index: int,
-               out: GaussianCloud | None = None) -> DecodedLayer:
-        """Decode layer ``index`` into ``out`` (views of a larger cloud) or a new cloud."""
-        layer = self.header.layers[index]
-        if out is None:
-            out = GaussianCloud.zeros(layer.gaussian_count, self.header.sh_degree)
+    def read(self, data: bytes | memoryview, index: int):
+        """Read and validate layer ``index`` (no output allocated yet)."""
         if index == 0:
-            decode_sketch_layer(data, self.header, self.limits, out)
+            return read_sketch_layer(data, self.header, self.limits)
+        patch, self.codebooks = read_patch_layer(data, self.header, index, self.codebooks)
+        return patch
+
+    def fill(self, index: int, content, out: GaussianCloud) -> DecodedLayer:
+        """Write a read layer into ``out`` (a new cloud or a view of a larger one)."""
+        if index == 0:
+            fill_sketch_layer(content, self.header.sh_degree, out)
         else:
-            if self.codebooks is None:
-                self.codebooks = read_codebooks(data, self.header)
-            decode_patch_layer(data, self.header, index, self.codebooks, out)
+            fill_patch_layer(content, self.codebooks, out)
+        layer = self.header.layers[index]
         return DecodedLayer(index, layer.kind.name.lower(), out, layer.end_offset)
+
+    def decode(self, data: bytes | memoryview, index: int) -> DecodedLayer:
+        """Read, then allocate and fill, one layer."""
+        content = self.read(data, index)
+        out = GaussianCloud.zeros(self.header.layers[index].gaussian_count, self.header.sh_degree)
+        return self.fill(index, content, out)
 
 
 # ------------------------------------------------------------------------------ whole files
@@ -91,15 +105,15 @@ def decode_layers(source: Source, max_layer: int | None = None,
     header = read_header(data, limits)
     last = _last_decodable_layer(header, len(data), max_layer)
     decoder = _LayerDecoder(header, limits)
-    # One allocation for every decoded layer; each layer decodes into a view of it.
-    total = header.layers[last].gaussian_count + sum(
-        layer.gaussian_count for layer in header.layers[:last])
-    cloud = GaussianCloud.zeros(total, header.sh_degree)
+    # Read (and so validate) every layer first; then one allocation for all of them, sized only
+    # by counts the layers' contents have confirmed ([R-60]); each layer fills a view of it.
+    contents = [decoder.read(data, k) for k in range(last + 1)]
+    counts = [header.layers[k].gaussian_count for k in range(last + 1)]
+    cloud = GaussianCloud.zeros(sum(counts), header.sh_degree)
     layers, start = [], 0
-    for k in range(last + 1):
-        stop = start + header.layers[k].gaussian_count
-        layers.append(decoder.decode(data, k, cloud.view(start, stop)))
-        start = stop
+    for k, content in enumerate(contents):
+        layers.append(decoder.fill(k, content, cloud.view(start, start + counts[k])))
+        start += counts[k]
     return DecodeResult(header, layers, last == len(header.layers) - 1, cloud)
 
 
@@ -218,15 +232,33 @@ def inspect(source: Source, limits: Limits | None = None) -> FileInfo:
     wrapped = is_gzip(data)
     inner, _ = _unwrap(data, limits)
     header = read_header(inner, limits)
-    info = FileInfo(header, wrapped, stored, read_gzip_layer_ends(data) if wrapped else None)
+    ends = _valid_layer_ends(read_gzip_layer_ends(data), len(header.layers)) if wrapped else None
+    info = FileInfo(header, wrapped, stored, ends)
     meta = header.layers[0].section(SectionType.METADATA)
     if meta is not None and len(inner) >= meta.end:
         try:
-            raw = section_payload(inner, meta)
-            info.metadata = parse_metadata(raw)
+            info.metadata = parse_metadata(verified_payload(inner, meta, limits))
         except FormatError as exc:
             info.metadata_error = str(exc)
     return info
+
+
+def _valid_layer_ends(ends: list[int] | None, layer_count: int) -> list[int] | None:
+    """The gzip SP offsets when they describe every layer in increasing order, else None ([R-83])."""
+    if ends is None or len(ends) != layer_count or any(b <= a for a, b in zip(ends, ends[1:])):
+        return None
+    return ends
+
+
+def verified_payload(data: bytes | memoryview, section: Section, limits: Limits) -> bytes:
+    """One section, length-limited, CRC-checked and inflated (for reading it outside a layer)."""
+    limits.check(f"section {section.index} raw length", section.raw_length,
+                 limits.max_metadata_bytes if section.type == SectionType.METADATA
+                 else limits.max_section_bytes)
+    stored = memoryview(data)[section.offset:section.end]
+    if crc32(stored) != section.crc32:
+        raise ChecksumError(f"section {section.index} ({section.type_name}) CRC-32 mismatch")
+    return section_payload(data, section)
 
 
 def parse_metadata(raw: bytes) -> dict:
@@ -291,11 +323,17 @@ class StreamDecoder:
     _next_layer: int = 0
     _decoder: _LayerDecoder | None = None
 
+    def __post_init__(self) -> None:
+        if self.max_layer is not None and self.max_layer < 0:
+            raise UsageError(f"max_layer must be >= 0, got {self.max_layer}")
+
     def feed(self, chunk: bytes) -> list[DecodedLayer]:
         """Add bytes; return the layers completed by them (possibly none)."""
         if not self._started:
             self._buffer += chunk
             if len(self._buffer) < 2:
+                if self._buffer and self._buffer[:1] not in (MAGIC[:1], GZIP_MAGIC[:1]):
+                    raise FormatError("not an spcodec file (bad magic)", "bad-magic")
                 return []
             self._started = True
             pending, self._buffer = bytes(self._buffer), bytearray()
@@ -325,7 +363,7 @@ class StreamDecoder:
         if self.header is None:
             need = header_bytes_needed(self._buffer)
             if need is None:
-                if len(self._buffer) >= len(MAGIC) and bytes(self._buffer[:len(MAGIC)]) != MAGIC:
+                if not MAGIC.startswith(bytes(self._buffer[:len(MAGIC)])):
                     raise FormatError("not an spcodec file (bad magic)", "bad-magic")
                 return []
             if len(self._buffer) < need:
@@ -363,8 +401,10 @@ class StreamDecoder:
             raise TruncatedError("the data ends before the header block is complete")
         if self.complete:
             return
+        # Like decode(): without max_layer a prefix ending at a layer boundary is valid ([R-11]);
+        # with max_layer, every requested layer must have arrived ([R-12]).
         boundary = {layer.end_offset for layer in self.header.layers}
-        if len(self._buffer) not in boundary:
+        if self.max_layer is not None or len(self._buffer) not in boundary:
             raise TruncatedError(f"the data ends at byte {len(self._buffer)}, inside layer "
                                  f"{self._next_layer}")
 

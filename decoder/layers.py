@@ -1,11 +1,16 @@
-"""Turning one layer's sections into Gaussians (spec decoding steps 6-9).
+"""Turning one layer's sections into Gaussians (spec decoding steps 7-9).
 
-Every section is CRC-checked on its stored bytes before it reaches a decompressor, and inflated into
-exactly its declared raw length; every count read from a payload is checked against the payload's
-own length before an array is sized from it.
+Decoding a layer has two steps. *Reading* checks the layer's integrity (unknown required sections,
+then the CRC of every section, in table order), inflates each section into exactly its declared raw
+length, parses it, decodes its Draco blobs and checks every value range. Only then is the output
+*filled*: the caller allocates it after the read has tied the layer's Gaussian count to bytes that
+are actually present, so a small hostile file cannot make the decoder allocate for a count it only
+declares ([R-60]).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -34,62 +39,80 @@ from spcodec.sections import (
 from .header import Header, Layer, Section
 
 _ROWS_PER_CHUNK = 1 << 15
+MAX_NORMALIZED = 2.0
+"""Largest |normalized coordinate| a sketch cluster may have ([R-42])."""
 
 
-def section_payload(data: bytes | memoryview, section: Section) -> bytes:
-    """CRC-check and inflate one section ([R-7], [R-24])."""
-    stored = memoryview(data)[section.offset:section.end]
-    if len(stored) != section.stored_length:
-        raise FormatError(f"section {section.index} ({section.type_name}) is cut short",
-                          "truncated")
-    if crc32(stored) != section.crc32:
-        raise ChecksumError(f"section {section.index} ({section.type_name}) CRC-32 mismatch")
-    return decompress(section.codec, stored, section.raw_length)
-
-
-def check_unknown_sections(layer: Layer, data: bytes | memoryview) -> None:
-    """Reject unknown required sections; CRC-check and skip unknown optional ones ([R-20], [R-21])."""
+def check_layer_integrity(layer: Layer, data: bytes | memoryview) -> None:
+    """Reject unknown required sections, then verify every section's CRC ([R-7], [R-20], [R-21])."""
     for sec in layer.sections:
-        if sec.known:
-            continue
-        if sec.required:
+        if not sec.known and sec.required:
             raise FormatError(f"layer {layer.index} holds required section type 0x{sec.type:04X}, "
                               f"unknown to this decoder", "unknown-required-section")
-        stored = memoryview(data)[sec.offset:sec.end]
+    view = memoryview(data)
+    for sec in layer.sections:
+        stored = view[sec.offset:sec.end]
+        if len(stored) != sec.stored_length:
+            raise FormatError(f"section {sec.index} ({sec.type_name}) is cut short", "truncated")
         if crc32(stored) != sec.crc32:
             raise ChecksumError(f"section {sec.index} ({sec.type_name}) CRC-32 mismatch")
 
 
+def section_payload(data: bytes | memoryview, section: Section) -> bytes:
+    """Inflate one section whose CRC was verified by :func:`check_layer_integrity` ([R-24])."""
+    stored = memoryview(data)[section.offset:section.end]
+    return decompress(section.codec, stored, section.raw_length)
+
+
 # ----------------------------------------------------------------------------- sketch layer
-def decode_sketch_layer(data: bytes | memoryview, header: Header, limits: Limits,
-                        out: GaussianCloud) -> None:
-    """Layer 0 into ``out``: Draco positions per cluster, attributes from the polynomial models."""
+@dataclass
+class SketchCluster:
+    """One validated cluster: its decoded positions, normalized positions and models."""
+
+    points: np.ndarray
+    normalized: np.ndarray
+    models: dict[SketchAttribute, np.ndarray | None]
+
+
+def read_sketch_layer(data: bytes | memoryview, header: Header,
+                      limits: Limits) -> list[SketchCluster]:
+    """Layer 0, read and validated: every cluster's positions and models, in table order."""
     layer = header.layers[0]
-    check_unknown_sections(layer, data)
+    check_layer_integrity(layer, data)
     meta = layer.section(SectionType.METADATA)
     if meta is not None:
         limits.check("metadata length", meta.raw_length, limits.max_metadata_bytes)
-        section_payload(data, meta)  # integrity only: content is ignorable ([R-70])
+        section_payload(data, meta)  # integrity only: the content is ignorable ([R-70])
     table = section_payload(data, layer.section(SectionType.SKETCH_CLUSTERS))
     draco = section_payload(data, layer.section(SectionType.SKETCH_POSITIONS))
     coeffs = section_payload(data, layer.section(SectionType.SKETCH_COEFFICIENTS))
     sh = header.sh_degree
     plan = parse_sketch(table, len(draco), len(coeffs), layer.gaussian_count, sh, limits)
-    starts = np.concatenate([[0], np.cumsum(plan.records["point_count"], dtype=np.int64)])
+    clusters = []
     for b, run in enumerate(plan.runs):
         points = decode_points(draco[run.start:run.stop], run.points, f"sketch Draco blob {b}")
         offset = 0
         for c in range(run.first_cluster, run.end_cluster):
             rec = plan.records[c]
-            count = int(rec["point_count"])
-            mine = points[offset:offset + count]
-            offset += count
+            mine = points[offset:offset + int(rec["point_count"])]
+            offset += len(mine)
+            x = normalize_positions(mine, rec["center"], rec["half_extent"])
+            if len(x) and np.abs(x).max() > MAX_NORMALIZED:
+                raise FormatError(f"cluster {c}: a position lies outside twice its frame",
+                                  "bad-value")
             models = {a: read_coefficients(coeffs, plan, c, a, sh) for a in SketchAttribute}
-            values = evaluate_models(normalize_positions(mine, rec["center"], rec["half_extent"]),
-                                     models)
-            rows = slice(int(starts[c]), int(starts[c]) + count)
-            out.means[rows] = mine
-            fill_cluster(out, rows, values, sh)
+            clusters.append(SketchCluster(mine, x, models))
+    return clusters
+
+
+def fill_sketch_layer(clusters: list[SketchCluster], sh_degree: int, out: GaussianCloud) -> None:
+    """Evaluate every cluster's models into ``out`` ([R-41]..[R-44], [R-48])."""
+    start = 0
+    for cluster in clusters:
+        rows = slice(start, start + len(cluster.points))
+        out.means[rows] = cluster.points
+        fill_cluster(out, rows, evaluate_models(cluster.normalized, cluster.models), sh_degree)
+        start = rows.stop
 
 
 def evaluate_models(x: np.ndarray, models: dict[SketchAttribute, np.ndarray | None]
@@ -130,26 +153,42 @@ def _degree(coeffs: np.ndarray) -> int:
 
 
 # ------------------------------------------------------------------------------ patch layers
+@dataclass
+class PatchData:
+    """One validated patch layer: decoded positions and index columns."""
+
+    positions: np.ndarray
+    columns: dict[PatchAttribute, np.ndarray]
+
+
 def read_codebooks(data: bytes | memoryview, header: Header) -> list[Codebook]:
-    """The codebooks carried by layer 1 ([R-50])."""
+    """The codebooks carried by layer 1 ([R-50]); layer 1's integrity must have been checked."""
     return parse_codebooks(section_payload(data, header.layers[1].section(
         SectionType.PATCH_CODEBOOKS)), header.sh_degree)
 
 
-def decode_patch_layer(data: bytes | memoryview, header: Header, index: int,
-                       codebooks: list[Codebook], out: GaussianCloud) -> None:
-    """A patch layer into ``out``: positions plus codebook lookups ([R-56])."""
+def read_patch_layer(data: bytes | memoryview, header: Header, index: int,
+                     codebooks: list[Codebook] | None) -> tuple[PatchData, list[Codebook]]:
+    """A patch layer read and validated (codebooks are read from layer 1 when not given yet)."""
     layer = header.layers[index]
-    check_unknown_sections(layer, data)
+    check_layer_integrity(layer, data)
+    if codebooks is None:
+        codebooks = read_codebooks(data, header)
     n = layer.gaussian_count
     positions = parse_positions(section_payload(data, layer.section(SectionType.PATCH_POSITIONS)), n)
     columns = parse_indices(section_payload(data, layer.section(SectionType.PATCH_ATTRIBUTES)), n,
                             codebooks)
-    out.means[:] = positions.decode()
+    return PatchData(positions.decode(), columns), codebooks
+
+
+def fill_patch_layer(patch: PatchData, codebooks: list[Codebook], out: GaussianCloud) -> None:
+    """Positions plus codebook lookups into ``out`` ([R-56])."""
+    n = len(patch.positions)
+    out.means[:] = patch.positions
     targets = {PatchAttribute.SCALE: out.scales, PatchAttribute.ROTATION: out.quats,
                PatchAttribute.OPACITY: out.opacities[:, None], PatchAttribute.COLOR_DC: out.sh_dc}
     for cb in codebooks:
-        values = gather(cb, columns[cb.attribute])
+        values = gather(cb, patch.columns[cb.attribute])
         if cb.attribute == PatchAttribute.ROTATION and cb.entry_dim != 4:
             values = decode_rotation(values)
         if cb.attribute in targets:

@@ -8,7 +8,6 @@ prefix of the inner file, which keeps progressive decoding working through the w
 
 from __future__ import annotations
 
-import io
 import struct
 import zlib
 from dataclasses import dataclass
@@ -78,31 +77,39 @@ def _inflate_zlib(stored: bytes | memoryview, raw_length: int) -> bytes:
                            bool(inflater.unconsumed_tail), bool(inflater.unused_data))
 
 
+ZSTD_FRAME_MAGIC = b"\x28\xb5\x2f\xfd"
+"""First bytes of a (non-skippable) zstd frame."""
+
+
 def _inflate_zstd(stored: bytes | memoryview, raw_length: int) -> bytes:
+    """Exactly one zstd frame that declares ``raw_length`` as its content size ([R-22], [R-24]).
+
+    The declared content size bounds the output (libzstd refuses a frame that produces more than
+    it declares), so the frame can be inflated in one call without an output cap of our own.
+    """
     if _zstd is None:
         raise FormatError("section is zstd-compressed but the 'zstandard' package is not "
                           "installed (pip install 'spcodec[zstd]')", "codec-unavailable")
-    dctx = _zstd.ZstdDecompressor(max_window_size=ZSTD_MAX_WINDOW)
-    source = io.BytesIO(bytes(stored))
+    data = bytes(stored)
+    if data[:4] != ZSTD_FRAME_MAGIC:
+        raise FormatError("section is not a zstd frame", "decompression-failed")
     try:
-        with dctx.stream_reader(source, read_across_frames=False, closefd=False) as reader:
-            out = _read_upto(reader, raw_length + 1)
-            at_end = reader.read(1) == b"" if len(out) == raw_length else True
+        params = _zstd.get_frame_parameters(data)
+    except _zstd.ZstdError as exc:
+        raise FormatError(f"zstd frame header is corrupt ({exc})", "decompression-failed") from None
+    if params.content_size == _zstd.CONTENTSIZE_UNKNOWN:
+        raise FormatError("zstd frame does not declare its content size", "decompression-failed")
+    if params.content_size != raw_length:
+        raise FormatError(f"zstd frame declares {params.content_size} bytes, the section "
+                          f"{raw_length}", "length-mismatch")
+    if params.window_size > ZSTD_MAX_WINDOW:
+        raise FormatError("zstd frame needs a window above 128 MiB", "decompression-failed")
+    inflater = _zstd.ZstdDecompressor(max_window_size=ZSTD_MAX_WINDOW).decompressobj()
+    try:
+        out = inflater.decompress(data)
     except _zstd.ZstdError as exc:
         raise FormatError(f"zstd frame is corrupt ({exc})", "decompression-failed") from None
-    leftover = source.tell() < len(stored)
-    return _check_inflated(out, raw_length, at_end, False, leftover)
-
-
-def _read_upto(reader, limit: int) -> bytes:
-    parts, total = [], 0
-    while total < limit:
-        block = reader.read(min(_CHUNK, limit - total))
-        if not block:
-            break
-        parts.append(block)
-        total += len(block)
-    return b"".join(parts)
+    return _check_inflated(out, raw_length, inflater.eof, False, bool(inflater.unused_data))
 
 
 def _check_inflated(out: bytes, raw_length: int, at_end: bool, more_output: bool,

@@ -122,7 +122,7 @@ class Codec(enum.IntEnum):
 
 
 SECTION_FLAG_REQUIRED = 0x01
-"""TOC flag bit 0: a decoder that does not know the section type must reject the file ([R-21])."""
+"""TOC flag bit 0: a decoder that does not know the section type must reject the layer ([R-21])."""
 
 # ------------------------------------------------------------------------- 6. Sketch sections
 # spec 6.1 - one record per cluster, 40 bytes

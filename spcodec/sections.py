@@ -394,7 +394,9 @@ def parse_positions(raw: bytes, count: int) -> PatchPositions:
         if not (np.isfinite(origin).all() and np.isfinite(step).all() and (step >= 0).all()):
             raise FormatError("QUANT16 origin or step is not finite and non-negative", "bad-value")
         extreme = origin.astype(np.float64) + 0xFFFF * step.astype(np.float64)
-        if not (np.abs(extreme) <= np.finfo(np.float32).max).all():
+        with np.errstate(over="ignore"):
+            rounded = extreme.astype(np.float32)  # binary64 -> binary32, as decoding does
+        if not np.isfinite(rounded).all():
             raise FormatError("QUANT16 positions can overflow float32", "bad-value")
         z = np.frombuffer(payload.data, dtype="<u2").reshape(3, count).T
         return PatchPositions(mode, _undo_zigzag_delta(z), origin, step)

@@ -98,3 +98,30 @@ def test_gunzip_rejects_trailing_members_and_corruption():
     with pytest.raises(FormatError) as err:
         gunzip(bytes(broken), 1 << 20)
     assert err.value.code == "bad-gzip"
+
+
+@pytest.mark.skipif(not zstd_available(), reason="zstandard is not installed")
+def test_zstd_sections_are_exactly_one_frame_with_its_size():
+    import zstandard
+    raw = bytes(range(256)) * 20
+    frame = compress(Codec.ZSTD, raw)
+    skippable = b"\x50\x2a\x4d\x18" + (4).to_bytes(4, "little") + b"abcd"
+    no_size = zstandard.ZstdCompressor(write_content_size=False).compress(raw)
+    with_checksum = zstandard.ZstdCompressor(write_checksum=True).compress(raw)
+    assert decompress(Codec.ZSTD, with_checksum, len(raw)) == raw
+    cases = {
+        "second frame": (frame + compress(Codec.ZSTD, b""), "decompression-failed"),
+        "skippable frame first": (skippable + frame, "decompression-failed"),
+        "skippable frame after": (frame + skippable, "decompression-failed"),
+        "truncated": (frame[:-10], "decompression-failed"),
+        "checksum missing": (with_checksum[:-4], "decompression-failed"),
+        "no content size": (no_size, "decompression-failed"),
+        "empty": (b"", "decompression-failed"),
+    }
+    for name, (stored, code) in cases.items():
+        with pytest.raises(FormatError) as err:
+            decompress(Codec.ZSTD, stored, len(raw))
+        assert err.value.code == code, name
+    with pytest.raises(FormatError) as err:
+        decompress(Codec.ZSTD, frame, len(raw) - 1)
+    assert err.value.code == "length-mismatch"

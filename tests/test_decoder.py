@@ -6,6 +6,7 @@ import io
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -232,3 +233,81 @@ def test_importing_the_decoder_keeps_heavy_packages_out():
             "print(heavy); sys.exit(1 if heavy else 0)")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stdout + done.stderr
+
+
+# ----------------------------------------------------------- findings of the spec review
+def test_positions_far_outside_the_cluster_frame_are_refused(small_scene):
+    """[R-42]: a tiny frame with a high-degree model would evaluate to inf; it is bad-value."""
+    import copy
+    scene = copy.deepcopy(small_scene)
+    scene.sketch[0].half_extent = np.full(3, 1e-20, np.float32)
+    assert error_code(build_bitstream(scene)) == "bad-value"
+
+
+def test_a_draco_blob_declaring_another_count_is_refused_before_decoding(small_scene):
+    """[R-49]: the point count in the blob's header must be the declared one."""
+    import copy
+    scene = copy.deepcopy(small_scene)
+    blob = bytearray(scene.sketch[0].draco)
+    blob[11:15] = (50_000_000).to_bytes(4, "little")
+    scene.sketch[0].draco = bytes(blob)
+    with pytest.raises(FormatError, match="declares 50000000 points") as err:
+        spcodec.decode(build_bitstream(scene))
+    assert err.value.code == "draco-failed"
+
+
+def test_declared_counts_are_confirmed_before_output_is_allocated(small_scene):
+    """[R-60]: a small file claiming 64 M Gaussians in a patch layer costs no gigabytes."""
+    import tracemalloc
+
+    def claim(layers):
+        layers[1].gaussian_count = 64_000_000 - sum(layer.gaussian_count for layer in layers[2:]) \
+            - layers[0].gaussian_count
+    data = forge(small_scene, layer_edit=claim)
+    tracemalloc.start()
+    with pytest.raises(FormatError):
+        spcodec.decode(data)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 50 * 2**20, f"peak {peak / 2**20:.0f} MiB"
+
+
+def test_a_short_gzip_layer_table_is_ignored_by_inspect(small_scene):
+    """[R-83]: SP offsets that do not describe every layer are treated as absent."""
+    import struct
+    data = bytearray(build_bitstream(small_scene, WriteOptions(gzip=True)))
+    xlen_at = 10
+    sub_at = xlen_at + 2
+    count_at = sub_at + 4
+    assert bytes(data[sub_at:sub_at + 2]) == b"SP"
+    struct.pack_into("<H", data, count_at, 1)  # claim one layer (the header CRC is not set here:
+    flags = data[3] & ~2                        # drop FHCRC so the edit is not a gzip error)
+    data[3] = flags
+    del data[count_at + 2 + 8 * 3:count_at + 2 + 8 * 3 + 2]  # remove the 2-byte FHCRC field
+    info = spcodec.inspect(bytes(data)).to_json()
+    assert [layer["end_offset"] for layer in info["layers"]] == [None] * len(info["layers"])
+
+
+def test_inspect_applies_the_metadata_limit(small_file):
+    info = spcodec.inspect(small_file, limits=Limits(max_metadata_bytes=4))
+    assert info.metadata is None and "limit" in info.metadata_error
+
+
+def test_stream_decoder_agrees_with_decode(small_file):
+    header = spcodec.decode_layers(small_file).header
+    first_end = header.layers[0].end_offset
+    dec = spcodec.StreamDecoder(max_layer=1)
+    dec.feed(small_file[:first_end])
+    with pytest.raises(TruncatedError):  # layer 1 was asked for and never arrived
+        dec.close()
+    with pytest.raises(TruncatedError):
+        spcodec.decode(small_file[:first_end], max_layer=1)
+    for junk in (b"abc", b"x"):
+        with pytest.raises(FormatError) as err:
+            spcodec.StreamDecoder().feed(junk)
+        assert err.value.code == "bad-magic"
+        with pytest.raises(FormatError) as err:
+            spcodec.decode(junk)
+        assert err.value.code == "bad-magic"
+    with pytest.raises(UsageError):
+        spcodec.StreamDecoder(max_layer=-1)

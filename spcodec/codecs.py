@@ -82,16 +82,52 @@ def _inflate_zstd(stored: bytes | memoryview, raw_length: int) -> bytes:
     if _zstd is None:
         raise FormatError("section is zstd-compressed but the 'zstandard' package is not "
                           "installed (pip install 'spcodec[zstd]')", "codec-unavailable")
+    stored = bytes(stored)
+    frame = zstd_frame_size(stored)
     dctx = _zstd.ZstdDecompressor(max_window_size=ZSTD_MAX_WINDOW)
-    source = io.BytesIO(bytes(stored))
+    source = io.BytesIO(stored[:frame])
     try:
         with dctx.stream_reader(source, read_across_frames=False, closefd=False) as reader:
             out = _read_upto(reader, raw_length + 1)
             at_end = reader.read(1) == b"" if len(out) == raw_length else True
     except _zstd.ZstdError as exc:
         raise FormatError(f"zstd frame is corrupt ({exc})", "decompression-failed") from None
-    leftover = source.tell() < len(stored)
-    return _check_inflated(out, raw_length, at_end, False, leftover)
+    return _check_inflated(out, raw_length, at_end, False, frame < len(stored))
+
+
+ZSTD_FRAME_MAGIC = b"\x28\xb5\x2f\xfd"
+_ZSTD_BLOCK_RLE, _ZSTD_BLOCK_RESERVED = 1, 3
+
+
+def zstd_frame_size(stored: bytes) -> int:
+    """Length of the one zstd frame that ``stored`` must start with ([R-22], [R-24]).
+
+    The stream reader reads its input in large chunks and moves on to whatever follows a frame
+    (a second frame, a skippable frame), so "bytes after the frame" cannot be seen from it.
+    Walking the block headers gives the frame's exact end. A skippable frame is not "one zstd
+    frame" and is refused like any other non-frame.
+    """
+    if stored[:4] != ZSTD_FRAME_MAGIC:
+        raise FormatError("zstd section does not start with a zstd frame", "decompression-failed")
+    try:
+        pos = _zstd.frame_header_size(stored)
+        checksum = _zstd.get_frame_parameters(stored).has_checksum
+    except _zstd.ZstdError as exc:
+        raise FormatError(f"zstd frame header is corrupt ({exc})", "decompression-failed") from None
+    while True:
+        if pos + 3 > len(stored):
+            raise FormatError("zstd frame ends early", "decompression-failed")
+        block = int.from_bytes(stored[pos:pos + 3], "little")
+        last, kind, size = block & 1, (block >> 1) & 3, block >> 3
+        if kind == _ZSTD_BLOCK_RESERVED:
+            raise FormatError("zstd frame has a reserved block type", "decompression-failed")
+        pos += 3 + (1 if kind == _ZSTD_BLOCK_RLE else size)
+        if last:
+            break
+    pos += 4 if checksum else 0
+    if pos > len(stored):
+        raise FormatError("zstd frame ends early", "decompression-failed")
+    return pos
 
 
 def _read_upto(reader, limit: int) -> bytes:

@@ -20,7 +20,16 @@ from spcodec.errors import FormatError, LimitError, TruncatedError, UsageError
 from spcodec.limits import DEFAULT_LIMITS, Limits
 
 from .header import Header, header_bytes_needed, read_header
-from .layers import decode_patch_layer, decode_sketch_layer, read_codebooks, section_payload
+from .layers import (
+    PatchPlan,
+    SketchPlan,
+    fill_patch_layer,
+    fill_sketch_layer,
+    prepare_patch_layer,
+    prepare_sketch_layer,
+    read_codebooks,
+    section_payload,
+)
 
 Source = Union[str, os.PathLike, bytes, bytearray, memoryview, BinaryIO]
 
@@ -48,24 +57,39 @@ class DecodeResult:
 
 
 class _LayerDecoder:
-    """Decodes layers of one file in order, keeping the codebooks that layer 1 carries."""
+    """Decodes layers of one file in order, keeping the codebooks that layer 1 carries.
+
+    Each layer is first *prepared* (CRC-checked, inflated, parsed, Draco-decoded) and only then
+    given output memory, so the output is sized by data that exists rather than by a count the
+    layer table claims ([R-60], [R-62]).
+    """
 
     def __init__(self, header: Header, limits: Limits) -> None:
         self.header, self.limits, self.codebooks = header, limits, None
 
-    def decode(self, data: bytes | memoryview, index: int,
-               out: GaussianCloud | None = None) -> DecodedLayer:
-        """Decode layer ``index`` into ``out`` (views of a larger cloud) or a new cloud."""
+    def prepare(self, data: bytes | memoryview, index: int) -> SketchPlan | PatchPlan:
+        """Validate layer ``index`` against its bytes, without allocating its output."""
+        if index == 0:
+            return prepare_sketch_layer(data, self.header, self.limits)
+        if self.codebooks is None:
+            self.codebooks = read_codebooks(data, self.header)
+        return prepare_patch_layer(data, self.header, index, self.codebooks)
+
+    def fill(self, plan: SketchPlan | PatchPlan, index: int,
+             out: GaussianCloud | None = None) -> DecodedLayer:
+        """Decode a prepared layer into ``out`` (views of a larger cloud) or a new cloud."""
         layer = self.header.layers[index]
         if out is None:
-            out = GaussianCloud.zeros(layer.gaussian_count, self.header.sh_degree)
+            out = GaussianCloud.zeros(plan.gaussian_count, self.header.sh_degree)
         if index == 0:
-            decode_sketch_layer(data, self.header, self.limits, out)
+            fill_sketch_layer(plan, out)
         else:
-            if self.codebooks is None:
-                self.codebooks = read_codebooks(data, self.header)
-            decode_patch_layer(data, self.header, index, self.codebooks, out)
+            fill_patch_layer(plan, self.codebooks, out)
         return DecodedLayer(index, layer.kind.name.lower(), out, layer.end_offset)
+
+    def decode(self, data: bytes | memoryview, index: int) -> DecodedLayer:
+        """Prepare and decode layer ``index`` into a new cloud."""
+        return self.fill(self.prepare(data, index), index)
 
 
 # ------------------------------------------------------------------------------ whole files
@@ -91,14 +115,14 @@ def decode_layers(source: Source, max_layer: int | None = None,
     header = read_header(data, limits)
     last = _last_decodable_layer(header, len(data), max_layer)
     decoder = _LayerDecoder(header, limits)
-    # One allocation for every decoded layer; each layer decodes into a view of it.
-    total = header.layers[last].gaussian_count + sum(
-        layer.gaussian_count for layer in header.layers[:last])
-    cloud = GaussianCloud.zeros(total, header.sh_degree)
+    # Validate every layer first, then one allocation for all of them, sized by what the
+    # validated payloads hold; each layer decodes into a view of it.
+    plans = [decoder.prepare(data, k) for k in range(last + 1)]
+    cloud = GaussianCloud.zeros(sum(plan.gaussian_count for plan in plans), header.sh_degree)
     layers, start = [], 0
-    for k in range(last + 1):
-        stop = start + header.layers[k].gaussian_count
-        layers.append(decoder.decode(data, k, cloud.view(start, stop)))
+    for k, plan in enumerate(plans):
+        stop = start + plan.gaussian_count
+        layers.append(decoder.fill(plan, k, cloud.view(start, stop)))
         start = stop
     return DecodeResult(header, layers, last == len(header.layers) - 1, cloud)
 

@@ -7,6 +7,8 @@ own length before an array is sized from it.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from spcodec.attributes import (
@@ -24,6 +26,8 @@ from spcodec.limits import Limits
 from spcodec.polynomial import features, monomial_count, normalize_positions
 from spcodec.sections import (
     Codebook,
+    PatchPositions,
+    SketchLayout,
     parse_codebooks,
     parse_indices,
     parse_positions,
@@ -61,9 +65,27 @@ def check_unknown_sections(layer: Layer, data: bytes | memoryview) -> None:
 
 
 # ----------------------------------------------------------------------------- sketch layer
-def decode_sketch_layer(data: bytes | memoryview, header: Header, limits: Limits,
-                        out: GaussianCloud) -> None:
-    """Layer 0 into ``out``: Draco positions per cluster, attributes from the polynomial models."""
+@dataclass
+class SketchPlan:
+    """Layer 0 parsed and validated, with its Draco points decoded: everything but evaluation.
+
+    The output is allocated only from a plan, so its size comes from points that exist, not
+    from a count that a header or cluster table merely claims.
+    """
+
+    layout: SketchLayout
+    points: list[np.ndarray]
+    """Decoded points of each Draco run, in run order."""
+    coefficients: bytes
+    sh_degree: int
+
+    @property
+    def gaussian_count(self) -> int:
+        return int(sum(len(p) for p in self.points))
+
+
+def prepare_sketch_layer(data: bytes | memoryview, header: Header, limits: Limits) -> SketchPlan:
+    """CRC-check, inflate and parse layer 0, and decode its Draco blobs ([R-40]..[R-47])."""
     layer = header.layers[0]
     check_unknown_sections(layer, data)
     meta = layer.section(SectionType.METADATA)
@@ -74,22 +96,59 @@ def decode_sketch_layer(data: bytes | memoryview, header: Header, limits: Limits
     draco = section_payload(data, layer.section(SectionType.SKETCH_POSITIONS))
     coeffs = section_payload(data, layer.section(SectionType.SKETCH_COEFFICIENTS))
     sh = header.sh_degree
-    plan = parse_sketch(table, len(draco), len(coeffs), layer.gaussian_count, sh, limits)
-    starts = np.concatenate([[0], np.cumsum(plan.records["point_count"], dtype=np.int64)])
-    for b, run in enumerate(plan.runs):
-        points = decode_points(draco[run.start:run.stop], run.points, f"sketch Draco blob {b}")
+    layout = parse_sketch(table, len(draco), len(coeffs), layer.gaussian_count, sh, limits)
+    points = [decode_points(draco[run.start:run.stop], run.points, f"sketch Draco blob {b}")
+              for b, run in enumerate(layout.runs)]
+    return SketchPlan(layout, points, coeffs, sh)
+
+
+def fill_sketch_layer(plan: SketchPlan, out: GaussianCloud) -> None:
+    """Evaluate every cluster's models at its points and write the Gaussians into ``out``."""
+    records, sh = plan.layout.records, plan.sh_degree
+    starts = np.concatenate([[0], np.cumsum(records["point_count"], dtype=np.int64)])
+    for run, points in zip(plan.layout.runs, plan.points):
         offset = 0
         for c in range(run.first_cluster, run.end_cluster):
-            rec = plan.records[c]
+            rec = records[c]
             count = int(rec["point_count"])
             mine = points[offset:offset + count]
             offset += count
-            models = {a: read_coefficients(coeffs, plan, c, a, sh) for a in SketchAttribute}
-            values = evaluate_models(normalize_positions(mine, rec["center"], rec["half_extent"]),
-                                     models)
+            models = {a: read_coefficients(plan.coefficients, plan.layout, c, a, sh)
+                      for a in SketchAttribute}
+            with np.errstate(over="ignore", invalid="ignore"):
+                values = evaluate_models(normalize_positions(mine, rec["center"],
+                                                             rec["half_extent"]), models)
+            check_model_values(values, c)
             rows = slice(int(starts[c]), int(starts[c]) + count)
             out.means[rows] = mine
             fill_cluster(out, rows, values, sh)
+
+
+def decode_sketch_layer(data: bytes | memoryview, header: Header, limits: Limits,
+                        out: GaussianCloud) -> None:
+    """Layer 0 into ``out``: Draco positions per cluster, attributes from the polynomial models."""
+    fill_sketch_layer(prepare_sketch_layer(data, header, limits), out)
+
+
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def check_model_values(values: dict[SketchAttribute, np.ndarray], cluster: int) -> None:
+    """Refuse a cluster whose models evaluate to values no float32 parameter can hold ([R-34]).
+
+    Finite coefficients and frames can still overflow: a tiny half extent makes the normalized
+    positions huge, and a degree-10 monomial of them is not finite in binary64. Rotations and
+    opacities only need finite coded values (they are normalized or clamped); the other
+    parameters are stored as they are, so they must also fit in binary32.
+    """
+    for attribute, v in values.items():
+        if not np.isfinite(v).all():
+            raise FormatError(f"cluster {cluster}: the {attribute.name} model is not finite at "
+                              f"the cluster's points", "bad-value")
+        if attribute not in (SketchAttribute.ROTATION, SketchAttribute.OPACITY) and \
+                v.size and float(np.abs(v).max()) > _FLOAT32_MAX:
+            raise FormatError(f"cluster {cluster}: the {attribute.name} model overflows float32",
+                              "bad-value")
 
 
 def evaluate_models(x: np.ndarray, models: dict[SketchAttribute, np.ndarray | None]
@@ -136,26 +195,51 @@ def read_codebooks(data: bytes | memoryview, header: Header) -> list[Codebook]:
         SectionType.PATCH_CODEBOOKS)), header.sh_degree)
 
 
-def decode_patch_layer(data: bytes | memoryview, header: Header, index: int,
-                       codebooks: list[Codebook], out: GaussianCloud) -> None:
-    """A patch layer into ``out``: positions plus codebook lookups ([R-56])."""
+@dataclass
+class PatchPlan:
+    """A patch layer's positions and index columns, validated against their actual bytes."""
+
+    index: int
+    positions: PatchPositions
+    columns: dict[PatchAttribute, np.ndarray]
+
+    @property
+    def gaussian_count(self) -> int:
+        return len(self.positions)
+
+
+def prepare_patch_layer(data: bytes | memoryview, header: Header, index: int,
+                        codebooks: list[Codebook]) -> PatchPlan:
+    """CRC-check, inflate and parse one patch layer's sections ([R-52]..[R-58])."""
     layer = header.layers[index]
     check_unknown_sections(layer, data)
     n = layer.gaussian_count
     positions = parse_positions(section_payload(data, layer.section(SectionType.PATCH_POSITIONS)), n)
     columns = parse_indices(section_payload(data, layer.section(SectionType.PATCH_ATTRIBUTES)), n,
                             codebooks)
-    out.means[:] = positions.decode()
+    return PatchPlan(index, positions, columns)
+
+
+def fill_patch_layer(plan: PatchPlan, codebooks: list[Codebook], out: GaussianCloud) -> None:
+    """Positions plus codebook lookups into ``out`` ([R-56])."""
+    n = plan.gaussian_count
+    out.means[:] = plan.positions.decode()
     targets = {PatchAttribute.SCALE: out.scales, PatchAttribute.ROTATION: out.quats,
                PatchAttribute.OPACITY: out.opacities[:, None], PatchAttribute.COLOR_DC: out.sh_dc}
     for cb in codebooks:
-        values = gather(cb, columns[cb.attribute])
+        values = gather(cb, plan.columns[cb.attribute])
         if cb.attribute == PatchAttribute.ROTATION and cb.entry_dim != 4:
             values = decode_rotation(values)
         if cb.attribute in targets:
             targets[cb.attribute][:] = values
         else:
             out.sh_rest[:, cb.attribute.sh_slice, :] = values.reshape(n, cb.attribute.width // 3, 3)
+
+
+def decode_patch_layer(data: bytes | memoryview, header: Header, index: int,
+                       codebooks: list[Codebook], out: GaussianCloud) -> None:
+    """A patch layer into ``out``: positions plus codebook lookups ([R-56])."""
+    fill_patch_layer(prepare_patch_layer(data, header, index, codebooks), codebooks, out)
 
 
 def gather(codebook: Codebook, columns: np.ndarray) -> np.ndarray:

@@ -6,6 +6,7 @@ import io
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -232,3 +233,72 @@ def test_importing_the_decoder_keeps_heavy_packages_out():
             "print(heavy); sys.exit(1 if heavy else 0)")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stdout + done.stderr
+
+
+# ------------------------------------------------------------------ findings of the fuzzer
+def test_claimed_gaussian_counts_are_not_allocated_before_validation(small_scene):
+    """[R-60], [R-62]: output memory is sized by validated payloads, not by the layer table.
+
+    Found by fuzzing: a few-KB file whose layer table claimed 60 million Gaussians made the
+    decoder allocate ~14 GB of output before the cluster table refused the count.
+    """
+    import tracemalloc
+
+    def claim_sketch(layers):
+        layers[0].gaussian_count = 60_000_000
+
+    def claim_patch(layers):
+        layers[2].gaussian_count = 60_000_000
+
+    for edit in (claim_sketch, claim_patch):
+        data = forge(small_scene, layer_edit=edit)
+        tracemalloc.start()
+        try:
+            assert error_code(data) == "bad-section"
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert peak < 16 * 2**20, f"{peak / 2**20:.0f} MiB traced for a {len(data)}-byte file"
+
+
+def test_sketch_models_that_overflow_are_refused(small_scene):
+    """[R-34]: finite coefficients at huge normalized positions must not give inf or NaN.
+
+    Found by fuzzing: a half extent of 1e-40 made the degree-d monomials overflow, and the
+    decoder returned infinite scales (with numpy overflow warnings).
+    """
+    import copy
+    import warnings
+
+    scene = copy.deepcopy(small_scene)
+    scene.sketch[0].half_extent = np.array([1e-40, 1e-40, 1e-40], np.float32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert error_code(build_bitstream(scene)) == "bad-value"
+
+
+def test_huge_finite_rotation_models_decode_to_unit_quaternions(small_scene):
+    """[R-31]: q / |q| is a unit quaternion even when |q|^2 overflows binary64.
+
+    The naive norm overflowed to inf and the decoder output the zero quaternion (finite, so no
+    other check noticed) for a rotation model evaluating to ~1e158.
+    """
+    import copy
+
+    from spcodec.attributes import SketchAttribute, decode_rotation
+    from spcodec.polynomial import monomial_count
+
+    assert np.allclose(decode_rotation(np.array([[1e200, 1e200, 0.0, 0.0]])),
+                       [[2**-0.5, 2**-0.5, 0.0, 0.0]])
+    scene = copy.deepcopy(small_scene)
+    cluster = scene.sketch[0]
+    cluster.half_extent = np.full(3, 1e-16, np.float32)
+    rotation = np.zeros((monomial_count(10), 4), np.float16)
+    rotation[0, 0] = 1.0
+    rotation[monomial_count(9), :2] = 65504.0   # x^10 drives w and x
+    cluster.models = {SketchAttribute.SCALE: np.zeros((1, 3), np.float16),
+                      SketchAttribute.ROTATION: rotation,
+                      SketchAttribute.OPACITY: np.full((1, 1), 0.5, np.float16),
+                      SketchAttribute.COLOR_DC: np.zeros((1, 3), np.float16)}
+    quats = spcodec.decode(build_bitstream(scene)).quats[:cluster.point_count]
+    assert np.allclose(np.linalg.norm(quats, axis=1), 1.0, atol=1e-6)

@@ -242,10 +242,11 @@ def inspect(source: Source, limits: Limits | None = None) -> FileInfo:
     wrapped = is_gzip(data)
     inner, _ = _unwrap(data, limits)
     header = read_header(inner, limits)
-    info = FileInfo(header, wrapped, stored, read_gzip_layer_ends(data) if wrapped else None)
+    info = FileInfo(header, wrapped, stored, _gzip_layer_ends(data, header) if wrapped else None)
     meta = header.layers[0].section(SectionType.METADATA)
     if meta is not None and len(inner) >= meta.end:
         try:
+            limits.check("metadata length", meta.raw_length, limits.max_metadata_bytes)
             raw = section_payload(inner, meta)
             info.metadata = parse_metadata(raw)
         except FormatError as exc:
@@ -253,16 +254,36 @@ def inspect(source: Source, limits: Limits | None = None) -> FileInfo:
     return info
 
 
+def _gzip_layer_ends(data: bytes | memoryview, header: Header) -> list[int] | None:
+    """The wrapper's ``SP`` layer offsets ([R-83]), or None when they cannot describe the file.
+
+    The subfield is advisory and decoders may ignore it; one with a count other than the layer
+    table's, or offsets that do not increase, is ignored rather than reported (a short list
+    used to make ``to_json`` fail with IndexError).
+    """
+    ends = read_gzip_layer_ends(data)
+    if ends is None or len(ends) != len(header.layers) or \
+            any(a >= b for a, b in zip(ends, ends[1:])):
+        return None
+    return ends
+
+
 def parse_metadata(raw: bytes) -> dict:
     """The metadata section's JSON object ([R-70])."""
     try:
-        value = json.loads(raw.decode("utf-8"))
-    except (UnicodeDecodeError, ValueError) as exc:
+        value = json.loads(raw.decode("utf-8"), parse_constant=_refuse_constant)
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+        # RecursionError: nesting deeper than the interpreter's stack, e.g. "[" * 100000.
         raise FormatError(f"metadata is not UTF-8 JSON ({exc.__class__.__name__})",
                           "bad-metadata") from None
     if not isinstance(value, dict):
         raise FormatError("metadata is not a JSON object", "bad-metadata")
     return value
+
+
+def _refuse_constant(name: str) -> None:
+    """NaN and Infinity are Python's JSON extensions, not RFC 8259 ([R-70])."""
+    raise ValueError(f"{name} is not JSON")
 
 
 def _read_header_prefix(path: str | os.PathLike, limits: Limits) -> bytes:

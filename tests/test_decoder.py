@@ -302,3 +302,51 @@ def test_huge_finite_rotation_models_decode_to_unit_quaternions(small_scene):
                       SketchAttribute.COLOR_DC: np.zeros((1, 3), np.float16)}
     quats = spcodec.decode(build_bitstream(scene)).quats[:cluster.point_count]
     assert np.allclose(np.linalg.norm(quats, axis=1), 1.0, atol=1e-6)
+
+
+@pytest.mark.parametrize("payload", [b"[" * 100_000, b'{"a":' * 50_000 + b"1" + b"}" * 50_000,
+                                     b'{"n": NaN}', b'{"i": -Infinity}'])
+def test_hostile_metadata_is_reported_as_bad_metadata(small_scene, payload):
+    """[R-70]: inspect reports unparsable metadata, it does not crash on it.
+
+    Found by fuzzing: deeply nested JSON raised RecursionError out of inspect(). NaN and
+    Infinity are Python extensions that are not JSON, and would make `info --json` invalid.
+    """
+    def hostile(sections):
+        sections[0].raw = payload
+    data = forge(small_scene, hostile)
+    info = spcodec.inspect(data)
+    assert info.metadata is None and "bad-metadata" in info.metadata_error
+    assert len(spcodec.decode(data)) == len(spcodec.decode(forge(small_scene)))
+
+
+def test_inspect_applies_the_metadata_limit(small_file):
+    """[R-60]: the metadata limit holds for inspect as it does for decode."""
+    info = spcodec.inspect(small_file, limits=Limits(max_metadata_bytes=4))
+    assert info.metadata is None and "limit-exceeded" in info.metadata_error
+
+
+def test_gzip_layer_offsets_that_do_not_fit_the_file_are_ignored(small_file):
+    """[R-83]: the SP subfield is advisory; one with the wrong count no longer breaks to_json.
+
+    Found by fuzzing: a wrapper whose SP list was shorter than the layer table made
+    ``inspect(...).to_json()`` raise IndexError.
+    """
+    import struct
+
+    from spcodec.codecs import crc32, gzip_wrap
+    from spcodec.writer import layer_end_offsets
+
+    ends = layer_end_offsets(small_file)
+    wrapped = bytearray(gzip_wrap(small_file, ends))
+    recorded = list(struct.unpack_from(f"<{len(ends)}Q", wrapped, 18))  # after XLEN, id, size, count
+    struct.pack_into(f"<{len(ends)}Q", wrapped, 18, *recorded[::-1])   # not increasing
+    header_end = 12 + struct.unpack_from("<H", wrapped, 10)[0]
+    struct.pack_into("<H", wrapped, header_end, crc32(bytes(wrapped[:header_end])) & 0xFFFF)
+    for data in (gzip_wrap(small_file, ends[:1]), bytes(wrapped)):    # too short; decreasing
+        info = spcodec.inspect(data)
+        assert info.gzip_layer_ends is None
+        assert [layer["end_offset"] for layer in info.to_json()["layers"]] == [None] * len(ends)
+        assert len(spcodec.decode(data)) == len(spcodec.decode(small_file))
+    good = spcodec.inspect(gzip_wrap(small_file, ends))
+    assert good.gzip_layer_ends == recorded

@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 from typing import BinaryIO, Union
 
 from spcodec.cloud import GaussianCloud
-from spcodec.codecs import Gunzipped, gunzip, is_gzip, read_gzip_layer_ends
-from spcodec.container import FIXED_HEADER_SIZE, GZIP_MAGIC, MAGIC, Codec, SectionType
+from spcodec.codecs import Gunzipped, gunzip, gunzip_head, is_gzip, read_gzip_layer_ends
+from spcodec.container import FIXED_HEADER_SIZE, GZIP_MAGIC, MAGIC, Codec, SectionType, header_size
 from spcodec.errors import FormatError, LimitError, TruncatedError, UsageError
 from spcodec.limits import DEFAULT_LIMITS, Limits
 
@@ -162,20 +162,60 @@ def read_source(source: Source, limits: Limits) -> bytes | memoryview:
         with open(source, "rb") as fh:
             return fh.read()
     if hasattr(source, "read"):
-        data = source.read(limits.max_file_bytes + 1)
-        limits.check("input size", len(data), limits.max_file_bytes)
-        return data
+        return _read_stream(source, limits)
     raise UsageError(f"cannot decode from a {type(source).__name__}; pass a path, bytes or a "
                      f"binary file")
 
 
+_READ_CHUNK = 1 << 24
+
+
+def _read_stream(source: BinaryIO, limits: Limits) -> bytes:
+    """Read a binary file object in chunks, refusing more than ``max_file_bytes``.
+
+    One ``read(max_file_bytes + 1)`` makes a buffered file allocate that many bytes up front
+    (4 GiB by default): MemoryError under an address-space limit, for any file, however small.
+    """
+    parts, total = [], 0
+    while True:
+        block = source.read(min(_READ_CHUNK, limits.max_file_bytes + 1 - total))
+        if not block:
+            return b"".join(parts)
+        parts.append(block)
+        total += len(block)
+        limits.check("input size", total, limits.max_file_bytes)
+
+
 def _unwrap(data: bytes | memoryview, limits: Limits) -> tuple[bytes | memoryview, Gunzipped | None]:
     if is_gzip(data):
-        gz = gunzip(data, limits.max_file_bytes)
+        cap = _wrapped_file_size(data, limits)
+        try:
+            gz = gunzip(data, cap)
+        except LimitError:
+            if cap < limits.max_file_bytes:
+                raise FormatError(f"the gzip wrapper inflates past the inner file's file_size of "
+                                  f"{cap} bytes", "trailing-data") from None
+            raise
         return gz.inner, gz
     if len(data) < 2 and GZIP_MAGIC.startswith(bytes(data)) and len(data):
         raise TruncatedError("the data ends inside the gzip header")
     return data, None
+
+
+def _wrapped_file_size(data: bytes | memoryview, limits: Limits) -> int:
+    """How much a gzip wrapper may inflate to: the wrapped header's ``file_size`` ([R-84]).
+
+    Only the header block is inflated for this. Without it, a few MB of gzip inflate to the
+    4 GiB limit before the decoder looks at the first byte: a bomb of garbage, or a small
+    valid file followed by gigabytes of zeros. A header block that is present and invalid is
+    reported at once (as the stream decoder does); one that is incomplete means the whole
+    wrapper inflates to less than a header, and the limit applies.
+    """
+    head = gunzip_head(data, header_size(limits.max_layers, limits.max_sections))
+    try:
+        return read_header(head, limits).file_size
+    except TruncatedError:
+        return limits.max_file_bytes
 
 
 # ------------------------------------------------------------------------------------ inspect
@@ -313,6 +353,7 @@ def _read_header_prefix(path: str | os.PathLike, limits: Limits) -> bytes:
 
 
 # ------------------------------------------------------------------------------ streaming
+_PIECE = 1 << 20
 @dataclass
 class StreamDecoder:
     """Incremental decoder: ``feed`` bytes as they arrive, get layers as they complete.
@@ -356,30 +397,51 @@ class StreamDecoder:
         if self._inflater is None:
             self._buffer += chunk
         else:
-            room = self.limits.max_file_bytes + 1 - len(self._buffer)
-            try:
-                out = self._inflater.decompress(chunk, room)
-            except zlib.error as exc:
-                raise FormatError(f"gzip wrapper is corrupt ({exc})", "bad-gzip") from None
-            if self._inflater.unconsumed_tail:
-                raise LimitError("gzip wrapper inflates past the file size limit")
-            if self._inflater.eof and self._inflater.unused_data:
-                raise FormatError("bytes follow the gzip member", "trailing-data")
-            self._buffer += out
+            self._inflate(chunk)
         self.limits.check("input size", len(self._buffer), self.limits.max_file_bytes)
 
+    def _inflate(self, chunk: bytes) -> None:
+        """Inflate a piece of the gzip wrapper, at most 1 MiB at a time, so that as soon as the
+        inner header block is whole its ``file_size`` caps the output ([R-84]): a small chunk of
+        a gzip bomb stops there instead of at the 4 GiB limit."""
+        while True:
+            self._read_header_if_ready()
+            cap = self.limits.max_file_bytes if self.header is None else self.header.file_size
+            if len(self._buffer) > cap:
+                if self.header is None:
+                    raise LimitError("gzip wrapper inflates past the file size limit")
+                raise FormatError("the gzip wrapper inflates past the inner file's file_size",
+                                  "trailing-data")
+            if not chunk:
+                break
+            try:
+                out = self._inflater.decompress(chunk, min(cap + 1 - len(self._buffer), _PIECE))
+            except zlib.error as exc:
+                raise FormatError(f"gzip wrapper is corrupt ({exc})", "bad-gzip") from None
+            self._buffer += out
+            chunk = self._inflater.unconsumed_tail
+        if self._inflater.eof and self._inflater.unused_data:
+            raise FormatError("bytes follow the gzip member", "trailing-data")
+
+    def _read_header_if_ready(self) -> None:
+        """Parse the header block once it is whole; refuse a bad fixed header even before."""
+        if self.header is not None:
+            return
+        need = header_bytes_needed(self._buffer)
+        if need is None:
+            if len(self._buffer) >= len(MAGIC) and bytes(self._buffer[:len(MAGIC)]) != MAGIC:
+                raise FormatError("not an spcodec file (bad magic)", "bad-magic")
+            return
+        if len(self._buffer) < need:
+            _check_fixed_header(self._buffer, self.limits)
+            return
+        self.header = read_header(self._buffer, self.limits)
+        self._decoder = _LayerDecoder(self.header, self.limits)
+
     def _drain(self) -> list[DecodedLayer]:
+        self._read_header_if_ready()
         if self.header is None:
-            need = header_bytes_needed(self._buffer)
-            if need is None:
-                if len(self._buffer) >= len(MAGIC) and bytes(self._buffer[:len(MAGIC)]) != MAGIC:
-                    raise FormatError("not an spcodec file (bad magic)", "bad-magic")
-                return []
-            if len(self._buffer) < need:
-                _check_fixed_header(self._buffer, self.limits)
-                return []
-            self.header = read_header(self._buffer, self.limits)
-            self._decoder = _LayerDecoder(self.header, self.limits)
+            return []
         if len(self._buffer) > self.header.file_size:
             raise FormatError("bytes follow the last section", "trailing-data")
         done = []

@@ -229,6 +229,16 @@ def read_gzip_layer_ends(data: bytes | memoryview) -> list[int] | None:
     return None
 
 
+def gunzip_head(data: bytes | memoryview, size: int) -> bytes:
+    """Up to ``size`` inner bytes from the start of a gzip wrapper; fewer if it is short or
+    corrupt (:func:`gunzip` then reports why). Cheap: inflates no more than it returns."""
+    inflater = zlib.decompressobj(wbits=31)
+    try:
+        return inflater.decompress(data, size)
+    except zlib.error:
+        return b""
+
+
 def gunzip(data: bytes | memoryview, max_bytes: int) -> Gunzipped:
     """Inflate a gzip-wrapped file into at most ``max_bytes`` inner bytes.
 

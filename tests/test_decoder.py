@@ -350,3 +350,45 @@ def test_gzip_layer_offsets_that_do_not_fit_the_file_are_ignored(small_file):
         assert len(spcodec.decode(data)) == len(spcodec.decode(small_file))
     good = spcodec.inspect(gzip_wrap(small_file, ends))
     assert good.gzip_layer_ends == recorded
+
+
+def test_gzip_wrapper_inflates_no_further_than_the_inner_file_size(small_file):
+    """[R-84], [R-61]: a few KB of gzip must not inflate to hundreds of MB before a check.
+
+    The wrapper was inflated up to max_file_bytes (4 GiB) before the inner header was read, so
+    a gzip bomb (garbage, or a valid file followed by zeros) cost its whole inflated size,
+    twice. Now the inner header block is read first and its file_size caps the inflation.
+    """
+    import gzip
+    import tracemalloc
+
+    zeros = b"\0" * (32 << 20)
+    bombs = {"trailing-data": gzip.compress(small_file + zeros, 9),
+             "bad-magic": gzip.compress(zeros, 9)}
+    for code, bomb in bombs.items():
+        assert len(bomb) < 64 * 1024
+        for run in (lambda: spcodec.decode(bomb),
+                    lambda: spcodec.StreamDecoder().feed(bomb),
+                    lambda: spcodec.inspect(bomb)):
+            tracemalloc.start()
+            try:
+                with pytest.raises(FormatError) as err:
+                    run()
+                peak = tracemalloc.get_traced_memory()[1]
+            finally:
+                tracemalloc.stop()
+            assert err.value.code == code
+            assert peak < 8 * 2**20, f"{peak / 2**20:.0f} MiB traced for a {len(bomb)}-byte bomb"
+
+
+def test_file_objects_are_read_in_bounded_chunks(small_file):
+    """A buffered file's read(n) allocates n bytes up front: one read(max_file_bytes + 1) cost
+    4 GiB of address space (MemoryError under a limit) for any file, however small."""
+    class Greedy(io.BytesIO):
+        def read(self, size=-1):
+            assert 0 <= size <= 1 << 24, f"read({size})"
+            return super().read(size)
+
+    assert spcodec.decode(Greedy(small_file)).equals(spcodec.decode(small_file))
+    with pytest.raises(LimitError):
+        spcodec.decode(Greedy(small_file), limits=Limits(max_file_bytes=len(small_file) - 1))

@@ -22,9 +22,11 @@ from spcodec.limits import DEFAULT_LIMITS, Limits
 from .header import Header, header_bytes_needed, read_header
 from .layers import (
     PatchPlan,
+    Payloads,
     SketchPlan,
     fill_patch_layer,
     fill_sketch_layer,
+    load_layer,
     prepare_patch_layer,
     prepare_sketch_layer,
     read_codebooks,
@@ -67,13 +69,17 @@ class _LayerDecoder:
     def __init__(self, header: Header, limits: Limits) -> None:
         self.header, self.limits, self.codebooks = header, limits, None
 
-    def prepare(self, data: bytes | memoryview, index: int) -> SketchPlan | PatchPlan:
-        """Validate layer ``index`` against its bytes, without allocating its output."""
+    def load(self, data: bytes | memoryview, index: int) -> Payloads:
+        """Decoding step 7 for layer ``index``: CRC-check and inflate its sections."""
+        return load_layer(data, self.header.layers[index], self.limits)
+
+    def prepare(self, payloads: Payloads, index: int) -> SketchPlan | PatchPlan:
+        """Steps 8-9 for a loaded layer, short of allocating its output."""
         if index == 0:
-            return prepare_sketch_layer(data, self.header, self.limits)
+            return prepare_sketch_layer(payloads, self.header, self.limits)
         if self.codebooks is None:
-            self.codebooks = read_codebooks(data, self.header)
-        return prepare_patch_layer(data, self.header, index, self.codebooks)
+            self.codebooks = read_codebooks(payloads, self.header)
+        return prepare_patch_layer(payloads, self.header, index, self.codebooks)
 
     def fill(self, plan: SketchPlan | PatchPlan, index: int,
              out: GaussianCloud | None = None) -> DecodedLayer:
@@ -88,8 +94,8 @@ class _LayerDecoder:
         return DecodedLayer(index, layer.kind.name.lower(), out, layer.end_offset)
 
     def decode(self, data: bytes | memoryview, index: int) -> DecodedLayer:
-        """Prepare and decode layer ``index`` into a new cloud."""
-        return self.fill(self.prepare(data, index), index)
+        """Load, prepare and decode layer ``index`` into a new cloud."""
+        return self.fill(self.prepare(self.load(data, index), index), index)
 
 
 # ------------------------------------------------------------------------------ whole files
@@ -115,9 +121,12 @@ def decode_layers(source: Source, max_layer: int | None = None,
     header = read_header(data, limits)
     last = _last_decodable_layer(header, len(data), max_layer)
     decoder = _LayerDecoder(header, limits)
-    # Validate every layer first, then one allocation for all of them, sized by what the
-    # validated payloads hold; each layer decodes into a view of it.
-    plans = [decoder.prepare(data, k) for k in range(last + 1)]
+    # Step 7 for every layer, then steps 8-9 (the order in which the spec reports errors), then
+    # one allocation for all layers, sized by what the validated payloads hold; each layer
+    # decodes into a view of it.
+    payloads = [decoder.load(data, k) for k in range(last + 1)]
+    plans = [decoder.prepare(payloads[k], k) for k in range(last + 1)]
+    del payloads
     cloud = GaussianCloud.zeros(sum(plan.gaussian_count for plan in plans), header.sh_degree)
     layers, start = [], 0
     for k, plan in enumerate(plans):

@@ -40,28 +40,42 @@ from .header import Header, Layer, Section
 _ROWS_PER_CHUNK = 1 << 15
 
 
-def section_payload(data: bytes | memoryview, section: Section) -> bytes:
-    """CRC-check and inflate one section ([R-7], [R-24])."""
+def stored_bytes(data: bytes | memoryview, section: Section) -> memoryview:
+    """A section's stored bytes, CRC-checked ([R-7])."""
     stored = memoryview(data)[section.offset:section.end]
     if len(stored) != section.stored_length:
         raise FormatError(f"section {section.index} ({section.type_name}) is cut short",
                           "truncated")
     if crc32(stored) != section.crc32:
         raise ChecksumError(f"section {section.index} ({section.type_name}) CRC-32 mismatch")
-    return decompress(section.codec, stored, section.raw_length)
+    return stored
 
 
-def check_unknown_sections(layer: Layer, data: bytes | memoryview) -> None:
-    """Reject unknown required sections; CRC-check and skip unknown optional ones ([R-20], [R-21])."""
+def section_payload(data: bytes | memoryview, section: Section) -> bytes:
+    """CRC-check and inflate one section ([R-7], [R-24])."""
+    return decompress(section.codec, stored_bytes(data, section), section.raw_length)
+
+
+Payloads = dict[int, bytes]
+"""A layer's known sections, inflated, by section type."""
+
+
+def load_layer(data: bytes | memoryview, layer: Layer, limits: Limits) -> Payloads:
+    """Decoding step 7 for one layer, in the spec's order: reject unknown required sections,
+    verify the CRC of *every* section (unknown optional ones included), then inflate the known
+    ones ([R-7], [R-20]..[R-24]). So a CRC mismatch anywhere in the layer is reported before a
+    decompression failure of another of its sections, and no parser sees unverified bytes."""
     for sec in layer.sections:
-        if sec.known:
-            continue
-        if sec.required:
+        if not sec.known and sec.required:
             raise FormatError(f"layer {layer.index} holds required section type 0x{sec.type:04X}, "
                               f"unknown to this decoder", "unknown-required-section")
-        stored = memoryview(data)[sec.offset:sec.end]
-        if crc32(stored) != sec.crc32:
-            raise ChecksumError(f"section {sec.index} ({sec.type_name}) CRC-32 mismatch")
+    meta = layer.section(SectionType.METADATA)
+    if meta is not None:
+        limits.check("metadata length", meta.raw_length, limits.max_metadata_bytes)
+    stored = [(sec, stored_bytes(data, sec)) for sec in layer.sections]
+    # Metadata is inflated for integrity only: its content is ignorable ([R-70]).
+    return {sec.type: decompress(sec.codec, raw, sec.raw_length) for sec, raw in stored
+            if sec.known}
 
 
 # ----------------------------------------------------------------------------- sketch layer
@@ -84,19 +98,14 @@ class SketchPlan:
         return int(sum(len(p) for p in self.points))
 
 
-def prepare_sketch_layer(data: bytes | memoryview, header: Header, limits: Limits) -> SketchPlan:
-    """CRC-check, inflate and parse layer 0, and decode its Draco blobs ([R-40]..[R-47])."""
-    layer = header.layers[0]
-    check_unknown_sections(layer, data)
-    meta = layer.section(SectionType.METADATA)
-    if meta is not None:
-        limits.check("metadata length", meta.raw_length, limits.max_metadata_bytes)
-        section_payload(data, meta)  # integrity only: content is ignorable ([R-70])
-    table = section_payload(data, layer.section(SectionType.SKETCH_CLUSTERS))
-    draco = section_payload(data, layer.section(SectionType.SKETCH_POSITIONS))
-    coeffs = section_payload(data, layer.section(SectionType.SKETCH_COEFFICIENTS))
+def prepare_sketch_layer(payloads: Payloads, header: Header, limits: Limits) -> SketchPlan:
+    """Parse layer 0's loaded payloads and decode its Draco blobs ([R-40]..[R-47])."""
+    table = payloads[SectionType.SKETCH_CLUSTERS]
+    draco = payloads[SectionType.SKETCH_POSITIONS]
+    coeffs = payloads[SectionType.SKETCH_COEFFICIENTS]
     sh = header.sh_degree
-    layout = parse_sketch(table, len(draco), len(coeffs), layer.gaussian_count, sh, limits)
+    layout = parse_sketch(table, len(draco), len(coeffs), header.layers[0].gaussian_count, sh,
+                          limits)
     points = [decode_points(draco[run.start:run.stop], run.points, f"sketch Draco blob {b}")
               for b, run in enumerate(layout.runs)]
     return SketchPlan(layout, points, coeffs, sh)
@@ -122,12 +131,6 @@ def fill_sketch_layer(plan: SketchPlan, out: GaussianCloud) -> None:
             rows = slice(int(starts[c]), int(starts[c]) + count)
             out.means[rows] = mine
             fill_cluster(out, rows, values, sh)
-
-
-def decode_sketch_layer(data: bytes | memoryview, header: Header, limits: Limits,
-                        out: GaussianCloud) -> None:
-    """Layer 0 into ``out``: Draco positions per cluster, attributes from the polynomial models."""
-    fill_sketch_layer(prepare_sketch_layer(data, header, limits), out)
 
 
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -189,10 +192,9 @@ def _degree(coeffs: np.ndarray) -> int:
 
 
 # ------------------------------------------------------------------------------ patch layers
-def read_codebooks(data: bytes | memoryview, header: Header) -> list[Codebook]:
-    """The codebooks carried by layer 1 ([R-50])."""
-    return parse_codebooks(section_payload(data, header.layers[1].section(
-        SectionType.PATCH_CODEBOOKS)), header.sh_degree)
+def read_codebooks(payloads: Payloads, header: Header) -> list[Codebook]:
+    """The codebooks carried by layer 1, from its loaded payloads ([R-50])."""
+    return parse_codebooks(payloads[SectionType.PATCH_CODEBOOKS], header.sh_degree)
 
 
 @dataclass
@@ -208,15 +210,12 @@ class PatchPlan:
         return len(self.positions)
 
 
-def prepare_patch_layer(data: bytes | memoryview, header: Header, index: int,
+def prepare_patch_layer(payloads: Payloads, header: Header, index: int,
                         codebooks: list[Codebook]) -> PatchPlan:
-    """CRC-check, inflate and parse one patch layer's sections ([R-52]..[R-58])."""
-    layer = header.layers[index]
-    check_unknown_sections(layer, data)
-    n = layer.gaussian_count
-    positions = parse_positions(section_payload(data, layer.section(SectionType.PATCH_POSITIONS)), n)
-    columns = parse_indices(section_payload(data, layer.section(SectionType.PATCH_ATTRIBUTES)), n,
-                            codebooks)
+    """Parse one patch layer's loaded payloads ([R-52]..[R-58])."""
+    n = header.layers[index].gaussian_count
+    positions = parse_positions(payloads[SectionType.PATCH_POSITIONS], n)
+    columns = parse_indices(payloads[SectionType.PATCH_ATTRIBUTES], n, codebooks)
     return PatchPlan(index, positions, columns)
 
 
@@ -234,12 +233,6 @@ def fill_patch_layer(plan: PatchPlan, codebooks: list[Codebook], out: GaussianCl
             targets[cb.attribute][:] = values
         else:
             out.sh_rest[:, cb.attribute.sh_slice, :] = values.reshape(n, cb.attribute.width // 3, 3)
-
-
-def decode_patch_layer(data: bytes | memoryview, header: Header, index: int,
-                       codebooks: list[Codebook], out: GaussianCloud) -> None:
-    """A patch layer into ``out``: positions plus codebook lookups ([R-56])."""
-    fill_patch_layer(prepare_patch_layer(data, header, index, codebooks), codebooks, out)
 
 
 def gather(codebook: Codebook, columns: np.ndarray) -> np.ndarray:

@@ -392,3 +392,47 @@ def test_file_objects_are_read_in_bounded_chunks(small_file):
     assert spcodec.decode(Greedy(small_file)).equals(spcodec.decode(small_file))
     with pytest.raises(LimitError):
         spcodec.decode(Greedy(small_file), limits=Limits(max_file_bytes=len(small_file) - 1))
+
+
+def test_errors_are_reported_in_the_order_of_the_decoding_process(small_scene):
+    """Section 12: "the first failing check in the order of section 11". Step 7 verifies the
+    CRC of every section of every decoded layer (and inflates them) before steps 8-9 parse any.
+
+    Each file below has two faults; the decoder used to report the later one: it inflated and
+    parsed each section (even ran Draco on a layer's positions) before checking the CRC of the
+    next section.
+    """
+    def bad_crc(index):
+        def edit(sections):
+            sections[index].crc = 0xDEADBEEF
+        return edit
+
+    def corrupt_zlib(index):
+        def edit(sections):
+            sections[index].codec, sections[index].stored = Codec.ZLIB, b"\x78\x9c\xff\xff\xff"
+        return edit
+
+    def garbage_positions(sections):
+        sec = next(s for s in sections if s.type == SectionType.PATCH_POSITIONS)
+        sec.raw = bytes([3, 0, 0, 0]) + b"DRACO" + bytes(30)
+
+    def long_cluster_table(sections):
+        sections[1].raw += b"\0"
+
+    def both(*edits):
+        def edit(sections):
+            for e in edits:
+                e(sections)
+        return edit
+
+    # metadata, clusters, positions, coefficients | codebooks, positions, attributes | ...
+    assert error_code(forge(small_scene, both(corrupt_zlib(1), bad_crc(3)))) == "section-crc"
+    assert error_code(forge(small_scene, both(garbage_positions, bad_crc(6)))) == "section-crc"
+    assert error_code(forge(small_scene, both(long_cluster_table, bad_crc(8)))) == "section-crc"
+    # Step 7 runs layer by layer: a layer-0 inflation failure precedes a layer-2 CRC mismatch.
+    assert error_code(forge(small_scene, both(corrupt_zlib(1), bad_crc(8)))) == \
+        "decompression-failed"
+    # With only the first fault, its own code is reported.
+    assert error_code(forge(small_scene, long_cluster_table)) == "bad-section"
+    assert error_code(forge(small_scene, corrupt_zlib(1))) == "decompression-failed"
+    assert error_code(forge(small_scene, garbage_positions)) == "draco-failed"

@@ -436,3 +436,66 @@ def test_errors_are_reported_in_the_order_of_the_decoding_process(small_scene):
     assert error_code(forge(small_scene, long_cluster_table)) == "bad-section"
     assert error_code(forge(small_scene, corrupt_zlib(1))) == "decompression-failed"
     assert error_code(forge(small_scene, garbage_positions)) == "draco-failed"
+
+
+def _one_point_clusters(count: int) -> bytes:
+    """A file of ``count`` one-point sketch clusters sharing one Draco blob: identical records
+    and identical points compress to almost nothing, so the file is tiny."""
+    import DracoPy
+
+    from spcodec.container import CLUSTER_DTYPE
+    from spcodec.writer import LayerSpec
+
+    blob = DracoPy.encode(np.zeros((count, 3), np.float32), quantization_bits=1,
+                          compression_level=10, preserve_order=True)
+    records = np.zeros(count, CLUSTER_DTYPE)
+    records["point_count"] = 1
+    records["draco_length"][0] = len(blob)
+    records["half_extent"] = 1.0
+    records["degrees"] = [1, 1, 1, 1, 255]                   # linear models, no SH rest
+    coefficients = np.full(4 * (3 + 4 + 1 + 3) * count, 0.25, "<f2").tobytes()
+    table = count.to_bytes(4, "little") + records.tobytes()
+    sections = [SectionSpec(SectionType.SKETCH_CLUSTERS, 0, table, Codec.ZSTD),
+                SectionSpec(SectionType.SKETCH_POSITIONS, 0, blob, Codec.NONE),
+                SectionSpec(SectionType.SKETCH_COEFFICIENTS, 0, coefficients, Codec.ZSTD)]
+    return assemble(sections, [LayerSpec(LayerKind.SKETCH, count)], sh_degree=0)
+
+
+def test_many_tiny_clusters_decode_in_time_proportional_to_their_points():
+    """[R-1] (no hang): the sketch decoder looped over clusters at ~50 us each, so a file of a
+    few KB holding 200 000 one-point clusters took over 10 s; the limits admit 4 million."""
+    import time
+
+    data = _one_point_clusters(200_000)
+    assert len(data) < 8192
+    start = time.perf_counter()
+    cloud = spcodec.decode(data)
+    elapsed = time.perf_counter() - start
+    assert len(cloud) == 200_000 and cloud.is_finite()
+    assert elapsed < 3.0, f"{elapsed:.1f} s for {len(data)} bytes"
+
+
+def test_sketch_decoding_is_bit_exact_with_the_per_cluster_evaluation(small_scene):
+    """Small clusters are evaluated together, yet every Gaussian is bit-for-bit what
+    evaluate_models + fill_cluster give for its cluster alone (what the encoder predicts)."""
+    from spcodec.attributes import SketchAttribute
+    from spcodec.cloud import GaussianCloud
+    from spcodec.decoder.layers import SMALL_CLUSTER, evaluate_models, fill_cluster
+    from spcodec.polynomial import normalize_positions
+    from spcodec.synthetic import random_encoded_scene
+
+    scene = random_encoded_scene(seed=3, clusters=40, patch_layers=0, sh_degree=3)
+    sizes = [c.point_count for c in scene.sketch]
+    assert min(sizes) < SMALL_CLUSTER <= max(sizes)
+    cloud = spcodec.decode(build_bitstream(scene))
+    start = 0
+    for cluster in scene.sketch:
+        rows = slice(start, start + cluster.point_count)
+        start += cluster.point_count
+        x = normalize_positions(cloud.means[rows], cluster.center, cluster.half_extent)
+        values = evaluate_models(x, {a: cluster.models.get(a) for a in SketchAttribute})
+        alone = GaussianCloud.zeros(cluster.point_count, scene.sh_degree)
+        fill_cluster(alone, slice(None), values, scene.sh_degree)
+        for name, array in alone.arrays().items():
+            if name != "means":
+                assert getattr(cloud, name)[rows].tobytes() == array.tobytes(), name

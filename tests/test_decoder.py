@@ -367,9 +367,9 @@ def test_gzip_wrapper_inflates_no_further_than_the_inner_file_size(small_file):
              "bad-magic": gzip.compress(zeros, 9)}
     for code, bomb in bombs.items():
         assert len(bomb) < 64 * 1024
-        for run in (lambda: spcodec.decode(bomb),
-                    lambda: spcodec.StreamDecoder().feed(bomb),
-                    lambda: spcodec.inspect(bomb)):
+        for run in (lambda b=bomb: spcodec.decode(b),
+                    lambda b=bomb: spcodec.StreamDecoder().feed(b),
+                    lambda b=bomb: spcodec.inspect(b)):
             tracemalloc.start()
             try:
                 with pytest.raises(FormatError) as err:
@@ -478,9 +478,10 @@ def test_many_tiny_clusters_decode_in_time_proportional_to_their_points():
 def test_sketch_decoding_is_bit_exact_with_the_per_cluster_evaluation(small_scene):
     """Small clusters are evaluated together, yet every Gaussian is bit-for-bit what
     evaluate_models + fill_cluster give for its cluster alone (what the encoder predicts)."""
+    from spcodec.decoder.layers import SMALL_CLUSTER, evaluate_models, fill_cluster
+
     from spcodec.attributes import SketchAttribute
     from spcodec.cloud import GaussianCloud
-    from spcodec.decoder.layers import SMALL_CLUSTER, evaluate_models, fill_cluster
     from spcodec.polynomial import normalize_positions
     from spcodec.synthetic import random_encoded_scene
 

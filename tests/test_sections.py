@@ -236,4 +236,4 @@ def test_draco_header_is_checked_before_draco_allocates(monkeypatch):
     monkeypatch.setattr(DracoPy, "decode", no_draco)
     for bad in hostile:
         raw = pack_positions(PatchPositions.draco(bad, points))
-        assert _code(lambda: parse_positions(raw, 10)) == "draco-failed"
+        assert _code(lambda r=raw: parse_positions(r, 10)) == "draco-failed"

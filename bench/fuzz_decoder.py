@@ -13,14 +13,21 @@ and then repair the checksums, so the mutant reaches the layer they aim at:
   CRCs, codecs...), header CRC recomputed;
 * ``sections``: dropped, duplicated, swapped, retyped, moved or spliced-in sections, codec swaps;
 * ``truncate`` / ``append`` / ``flip``: cuts at every layer, trailing bytes, unrepaired flips;
+* ``splice``: one file's header block on another file's sections;
+* ``claim``: a count or length claiming far more than the file holds, the rest kept consistent;
 * ``gzip``: the (mutated) inner file re-wrapped, or the gzip stream itself edited (header fields
   with FHCRC repaired, the ``SP`` layer-offset list, deflate bytes, trailer, extra members).
 
 Each mutant is given to ``decode_layers``, ``decode(max_layer=k)``, ``inspect`` (and its JSON) and
 the :class:`~spcodec.StreamDecoder` fed in random chunk sizes. The oracle: each either succeeds
 with finite arrays of consistent length, or raises :class:`~spcodec.FormatError` with a code of
-the spec's list; nothing else, no warning, within a time bound; the stream decoder agrees with
-``decode_layers``. Anything else is a *finding*, saved as a reproducer.
+the spec's list; nothing else, no warning, within a time bound (an interval timer interrupts a
+hang); the stream decoder accepts what ``decode_layers`` accepts, with the same layers. Every
+n-th input is also run under tracemalloc against a memory bound, and the process runs under an
+address-space limit with DracoPy's MemoryErrors counted (the decoder turns them into
+``draco-failed``, which would hide a blob that asked Draco for gigabytes). Anything else is a
+*finding*, saved as a reproducer; ``current.bin`` in the output folder is the input being
+tried, should the process die.
 
 The same mutators drive ``tests/test_fuzz.py`` through hypothesis (a :class:`Chooser` backed by
 ``data.draw``) and, with ``--atheris``, a coverage-guided run (a chooser backed by atheris'
@@ -966,19 +973,19 @@ class AtherisChooser:
 
 
 def run_atheris(argv: list[str]) -> None:  # pragma: no cover - by hand only
-    """Coverage-guided fuzzing: atheris chooses the mutations, the oracle is the same."""
+    """Coverage-guided fuzzing: atheris chooses the mutations, the oracle is the same.
+
+    The choices come from libFuzzer's input, so its corpus and crash files replay through this
+    mode (``--atheris -- crash-<hash>``), not through ``--replay``.
+    """
     import atheris
 
-    with atheris.instrument_imports(include=["spcodec"]):
-        import spcodec.decoder.api  # noqa: F401  (instrument the decoder and format layer)
-
-        import spcodec.sections  # noqa: F401
+    atheris.instrument_all()  # spcodec is already imported: instrument what is loaded
     seeds = build_seeds()
 
     def one_input(raw: bytes) -> None:
         ch = AtherisChooser(atheris.FuzzedDataProvider(raw))
-        kind = choice(ch, list(KIND_WEIGHTS))
-        _, data = make_mutant(seeds, ch, kind)
+        _, data = make_mutant(seeds, ch, choice(ch, list(KIND_WEIGHTS)))
         check_input(data, ch)
 
     atheris.Setup([sys.argv[0]] + argv, one_input)

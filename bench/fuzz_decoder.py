@@ -976,7 +976,9 @@ def run_atheris(argv: list[str]) -> None:  # pragma: no cover - by hand only
     """Coverage-guided fuzzing: atheris chooses the mutations, the oracle is the same.
 
     The choices come from libFuzzer's input, so its corpus and crash files replay through this
-    mode (``--atheris -- crash-<hash>``), not through ``--replay``.
+    mode (``--atheris -- crash-<hash>``), not through ``--replay``. Slow (about 20 inputs/s on
+    the 2-core machine: every loaded module is instrumented, numpy's Python parts included);
+    it complements the random mode, it does not replace it.
     """
     import atheris
 

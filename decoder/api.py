@@ -14,17 +14,22 @@ from dataclasses import dataclass, field
 from typing import BinaryIO, Union
 
 from spcodec.cloud import GaussianCloud
-from spcodec.codecs import Gunzipped, crc32, gunzip, is_gzip, read_gzip_layer_ends
-from spcodec.container import FIXED_HEADER_SIZE, GZIP_MAGIC, MAGIC, Codec, SectionType
-from spcodec.errors import ChecksumError, FormatError, LimitError, TruncatedError, UsageError
+from spcodec.codecs import Gunzipped, gunzip, gunzip_head, is_gzip, read_gzip_layer_ends
+from spcodec.container import FIXED_HEADER_SIZE, GZIP_MAGIC, MAGIC, Codec, SectionType, header_size
+from spcodec.errors import FormatError, LimitError, TruncatedError, UsageError
 from spcodec.limits import DEFAULT_LIMITS, Limits
 
-from .header import Header, Section, header_bytes_needed, read_header
+from .header import Header, header_bytes_needed, read_header
 from .layers import (
+    PatchPlan,
+    Payloads,
+    SketchPlan,
     fill_patch_layer,
     fill_sketch_layer,
-    read_patch_layer,
-    read_sketch_layer,
+    load_layer,
+    prepare_patch_layer,
+    prepare_sketch_layer,
+    read_codebooks,
     section_payload,
 )
 
@@ -54,32 +59,43 @@ class DecodeResult:
 
 
 class _LayerDecoder:
-    """Reads and fills the layers of one file in order, keeping the codebooks of layer 1."""
+    """Decodes layers of one file in order, keeping the codebooks that layer 1 carries.
+
+    Each layer is first *prepared* (CRC-checked, inflated, parsed, Draco-decoded) and only then
+    given output memory, so the output is sized by data that exists rather than by a count the
+    layer table claims ([R-60], [R-62]).
+    """
 
     def __init__(self, header: Header, limits: Limits) -> None:
         self.header, self.limits, self.codebooks = header, limits, None
 
-    def read(self, data: bytes | memoryview, index: int):
-        """Read and validate layer ``index`` (no output allocated yet)."""
-        if index == 0:
-            return read_sketch_layer(data, self.header, self.limits)
-        patch, self.codebooks = read_patch_layer(data, self.header, index, self.codebooks)
-        return patch
+    def load(self, data: bytes | memoryview, index: int) -> Payloads:
+        """Decoding step 7 for layer ``index``: CRC-check and inflate its sections."""
+        return load_layer(data, self.header.layers[index], self.limits)
 
-    def fill(self, index: int, content, out: GaussianCloud) -> DecodedLayer:
-        """Write a read layer into ``out`` (a new cloud or a view of a larger one)."""
+    def prepare(self, payloads: Payloads, index: int) -> SketchPlan | PatchPlan:
+        """Steps 8-9 for a loaded layer, short of allocating its output."""
         if index == 0:
-            fill_sketch_layer(content, self.header.sh_degree, out)
-        else:
-            fill_patch_layer(content, self.codebooks, out)
+            return prepare_sketch_layer(payloads, self.header, self.limits)
+        if self.codebooks is None:
+            self.codebooks = read_codebooks(payloads, self.header)
+        return prepare_patch_layer(payloads, self.header, index, self.codebooks)
+
+    def fill(self, plan: SketchPlan | PatchPlan, index: int,
+             out: GaussianCloud | None = None) -> DecodedLayer:
+        """Decode a prepared layer into ``out`` (views of a larger cloud) or a new cloud."""
         layer = self.header.layers[index]
+        if out is None:
+            out = GaussianCloud.zeros(plan.gaussian_count, self.header.sh_degree)
+        if index == 0:
+            fill_sketch_layer(plan, out)
+        else:
+            fill_patch_layer(plan, self.codebooks, out)
         return DecodedLayer(index, layer.kind.name.lower(), out, layer.end_offset)
 
     def decode(self, data: bytes | memoryview, index: int) -> DecodedLayer:
-        """Read, then allocate and fill, one layer."""
-        content = self.read(data, index)
-        out = GaussianCloud.zeros(self.header.layers[index].gaussian_count, self.header.sh_degree)
-        return self.fill(index, content, out)
+        """Load, prepare and decode layer ``index`` into a new cloud."""
+        return self.fill(self.prepare(self.load(data, index), index), index)
 
 
 # ------------------------------------------------------------------------------ whole files
@@ -105,15 +121,18 @@ def decode_layers(source: Source, max_layer: int | None = None,
     header = read_header(data, limits)
     last = _last_decodable_layer(header, len(data), max_layer)
     decoder = _LayerDecoder(header, limits)
-    # Read (and so validate) every layer first; then one allocation for all of them, sized only
-    # by counts the layers' contents have confirmed ([R-60]); each layer fills a view of it.
-    contents = [decoder.read(data, k) for k in range(last + 1)]
-    counts = [header.layers[k].gaussian_count for k in range(last + 1)]
-    cloud = GaussianCloud.zeros(sum(counts), header.sh_degree)
+    # Step 7 for every layer, then steps 8-9 (the order in which the spec reports errors), then
+    # one allocation for all layers, sized by what the validated payloads hold; each layer
+    # decodes into a view of it.
+    payloads = [decoder.load(data, k) for k in range(last + 1)]
+    plans = [decoder.prepare(payloads[k], k) for k in range(last + 1)]
+    del payloads
+    cloud = GaussianCloud.zeros(sum(plan.gaussian_count for plan in plans), header.sh_degree)
     layers, start = [], 0
-    for k, content in enumerate(contents):
-        layers.append(decoder.fill(k, content, cloud.view(start, start + counts[k])))
-        start += counts[k]
+    for k, plan in enumerate(plans):
+        stop = start + plan.gaussian_count
+        layers.append(decoder.fill(plan, k, cloud.view(start, stop)))
+        start = stop
     return DecodeResult(header, layers, last == len(header.layers) - 1, cloud)
 
 
@@ -152,20 +171,60 @@ def read_source(source: Source, limits: Limits) -> bytes | memoryview:
         with open(source, "rb") as fh:
             return fh.read()
     if hasattr(source, "read"):
-        data = source.read(limits.max_file_bytes + 1)
-        limits.check("input size", len(data), limits.max_file_bytes)
-        return data
+        return _read_stream(source, limits)
     raise UsageError(f"cannot decode from a {type(source).__name__}; pass a path, bytes or a "
                      f"binary file")
 
 
+_READ_CHUNK = 1 << 24
+
+
+def _read_stream(source: BinaryIO, limits: Limits) -> bytes:
+    """Read a binary file object in chunks, refusing more than ``max_file_bytes``.
+
+    One ``read(max_file_bytes + 1)`` makes a buffered file allocate that many bytes up front
+    (4 GiB by default): MemoryError under an address-space limit, for any file, however small.
+    """
+    parts, total = [], 0
+    while True:
+        block = source.read(min(_READ_CHUNK, limits.max_file_bytes + 1 - total))
+        if not block:
+            return b"".join(parts)
+        parts.append(block)
+        total += len(block)
+        limits.check("input size", total, limits.max_file_bytes)
+
+
 def _unwrap(data: bytes | memoryview, limits: Limits) -> tuple[bytes | memoryview, Gunzipped | None]:
     if is_gzip(data):
-        gz = gunzip(data, limits.max_file_bytes)
+        cap = _wrapped_file_size(data, limits)
+        try:
+            gz = gunzip(data, cap)
+        except LimitError:
+            if cap < limits.max_file_bytes:
+                raise FormatError(f"the gzip wrapper inflates past the inner file's file_size of "
+                                  f"{cap} bytes", "trailing-data") from None
+            raise
         return gz.inner, gz
     if len(data) < 2 and GZIP_MAGIC.startswith(bytes(data)) and len(data):
         raise TruncatedError("the data ends inside the gzip header")
     return data, None
+
+
+def _wrapped_file_size(data: bytes | memoryview, limits: Limits) -> int:
+    """How much a gzip wrapper may inflate to: the wrapped header's ``file_size`` ([R-84]).
+
+    Only the header block is inflated for this. Without it, a few MB of gzip inflate to the
+    4 GiB limit before the decoder looks at the first byte: a bomb of garbage, or a small
+    valid file followed by gigabytes of zeros. A header block that is present and invalid is
+    reported at once (as the stream decoder does); one that is incomplete means the whole
+    wrapper inflates to less than a header, and the limit applies.
+    """
+    head = gunzip_head(data, header_size(limits.max_layers, limits.max_sections))
+    try:
+        return read_header(head, limits).file_size
+    except TruncatedError:
+        return limits.max_file_bytes
 
 
 # ------------------------------------------------------------------------------------ inspect
@@ -232,45 +291,48 @@ def inspect(source: Source, limits: Limits | None = None) -> FileInfo:
     wrapped = is_gzip(data)
     inner, _ = _unwrap(data, limits)
     header = read_header(inner, limits)
-    ends = _valid_layer_ends(read_gzip_layer_ends(data), len(header.layers)) if wrapped else None
-    info = FileInfo(header, wrapped, stored, ends)
+    info = FileInfo(header, wrapped, stored, _gzip_layer_ends(data, header) if wrapped else None)
     meta = header.layers[0].section(SectionType.METADATA)
     if meta is not None and len(inner) >= meta.end:
         try:
-            info.metadata = parse_metadata(verified_payload(inner, meta, limits))
+            limits.check("metadata length", meta.raw_length, limits.max_metadata_bytes)
+            raw = section_payload(inner, meta)
+            info.metadata = parse_metadata(raw)
         except FormatError as exc:
             info.metadata_error = str(exc)
     return info
 
 
-def _valid_layer_ends(ends: list[int] | None, layer_count: int) -> list[int] | None:
-    """The gzip SP offsets when they describe every layer in increasing order, else None ([R-83])."""
-    if ends is None or len(ends) != layer_count or any(b <= a for a, b in zip(ends, ends[1:])):
+def _gzip_layer_ends(data: bytes | memoryview, header: Header) -> list[int] | None:
+    """The wrapper's ``SP`` layer offsets ([R-83]), or None when they cannot describe the file.
+
+    The subfield is advisory and decoders may ignore it; one with a count other than the layer
+    table's, or offsets that do not increase, is ignored rather than reported (a short list
+    used to make ``to_json`` fail with IndexError).
+    """
+    ends = read_gzip_layer_ends(data)
+    if ends is None or len(ends) != len(header.layers) or \
+            any(a >= b for a, b in zip(ends, ends[1:])):
         return None
     return ends
-
-
-def verified_payload(data: bytes | memoryview, section: Section, limits: Limits) -> bytes:
-    """One section, length-limited, CRC-checked and inflated (for reading it outside a layer)."""
-    limits.check(f"section {section.index} raw length", section.raw_length,
-                 limits.max_metadata_bytes if section.type == SectionType.METADATA
-                 else limits.max_section_bytes)
-    stored = memoryview(data)[section.offset:section.end]
-    if crc32(stored) != section.crc32:
-        raise ChecksumError(f"section {section.index} ({section.type_name}) CRC-32 mismatch")
-    return section_payload(data, section)
 
 
 def parse_metadata(raw: bytes) -> dict:
     """The metadata section's JSON object ([R-70])."""
     try:
-        value = json.loads(raw.decode("utf-8"))
-    except (UnicodeDecodeError, ValueError) as exc:
+        value = json.loads(raw.decode("utf-8"), parse_constant=_refuse_constant)
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+        # RecursionError: nesting deeper than the interpreter's stack, e.g. "[" * 100000.
         raise FormatError(f"metadata is not UTF-8 JSON ({exc.__class__.__name__})",
                           "bad-metadata") from None
     if not isinstance(value, dict):
         raise FormatError("metadata is not a JSON object", "bad-metadata")
     return value
+
+
+def _refuse_constant(name: str) -> None:
+    """NaN and Infinity are Python's JSON extensions, not RFC 8259 ([R-70])."""
+    raise ValueError(f"{name} is not JSON")
 
 
 def _read_header_prefix(path: str | os.PathLike, limits: Limits) -> bytes:
@@ -300,6 +362,7 @@ def _read_header_prefix(path: str | os.PathLike, limits: Limits) -> bytes:
 
 
 # ------------------------------------------------------------------------------ streaming
+_PIECE = 1 << 20
 @dataclass
 class StreamDecoder:
     """Incremental decoder: ``feed`` bytes as they arrive, get layers as they complete.
@@ -347,30 +410,51 @@ class StreamDecoder:
         if self._inflater is None:
             self._buffer += chunk
         else:
-            room = self.limits.max_file_bytes + 1 - len(self._buffer)
-            try:
-                out = self._inflater.decompress(chunk, room)
-            except zlib.error as exc:
-                raise FormatError(f"gzip wrapper is corrupt ({exc})", "bad-gzip") from None
-            if self._inflater.unconsumed_tail:
-                raise LimitError("gzip wrapper inflates past the file size limit")
-            if self._inflater.eof and self._inflater.unused_data:
-                raise FormatError("bytes follow the gzip member", "trailing-data")
-            self._buffer += out
+            self._inflate(chunk)
         self.limits.check("input size", len(self._buffer), self.limits.max_file_bytes)
 
+    def _inflate(self, chunk: bytes) -> None:
+        """Inflate a piece of the gzip wrapper, at most 1 MiB at a time, so that as soon as the
+        inner header block is whole its ``file_size`` caps the output ([R-84]): a small chunk of
+        a gzip bomb stops there instead of at the 4 GiB limit."""
+        while True:
+            self._read_header_if_ready()
+            cap = self.limits.max_file_bytes if self.header is None else self.header.file_size
+            if len(self._buffer) > cap:
+                if self.header is None:
+                    raise LimitError("gzip wrapper inflates past the file size limit")
+                raise FormatError("the gzip wrapper inflates past the inner file's file_size",
+                                  "trailing-data")
+            if not chunk:
+                break
+            try:
+                out = self._inflater.decompress(chunk, min(cap + 1 - len(self._buffer), _PIECE))
+            except zlib.error as exc:
+                raise FormatError(f"gzip wrapper is corrupt ({exc})", "bad-gzip") from None
+            self._buffer += out
+            chunk = self._inflater.unconsumed_tail
+        if self._inflater.eof and self._inflater.unused_data:
+            raise FormatError("bytes follow the gzip member", "trailing-data")
+
+    def _read_header_if_ready(self) -> None:
+        """Parse the header block once it is whole; refuse a bad fixed header even before."""
+        if self.header is not None:
+            return
+        need = header_bytes_needed(self._buffer)
+        if need is None:
+            if not MAGIC.startswith(bytes(self._buffer[:len(MAGIC)])):
+                raise FormatError("not an spcodec file (bad magic)", "bad-magic")
+            return
+        if len(self._buffer) < need:
+            _check_fixed_header(self._buffer, self.limits)
+            return
+        self.header = read_header(self._buffer, self.limits)
+        self._decoder = _LayerDecoder(self.header, self.limits)
+
     def _drain(self) -> list[DecodedLayer]:
+        self._read_header_if_ready()
         if self.header is None:
-            need = header_bytes_needed(self._buffer)
-            if need is None:
-                if not MAGIC.startswith(bytes(self._buffer[:len(MAGIC)])):
-                    raise FormatError("not an spcodec file (bad magic)", "bad-magic")
-                return []
-            if len(self._buffer) < need:
-                _check_fixed_header(self._buffer, self.limits)
-                return []
-            self.header = read_header(self._buffer, self.limits)
-            self._decoder = _LayerDecoder(self.header, self.limits)
+            return []
         if len(self._buffer) > self.header.file_size:
             raise FormatError("bytes follow the last section", "trailing-data")
         done = []

@@ -154,6 +154,7 @@ def read_header(data: bytes | memoryview, limits: Limits) -> Header:
         raise FormatError(f"SH degree {head.sh_degree} is outside 0..3", "bad-value")
     limits.check("Gaussian count", head.gaussian_count, limits.max_gaussians)
     limits.check("file size", head.file_size, limits.max_file_bytes)
+    limits.check_gaussian_density(head.gaussian_count, head.file_size)
     layer_rows = np.frombuffer(block, LAYER_DTYPE, head.layer_count, FIXED_HEADER_SIZE)
     toc_rows = np.frombuffer(block, SECTION_DTYPE, head.section_count,
                              FIXED_HEADER_SIZE + layer_rows.nbytes)

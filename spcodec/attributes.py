@@ -99,10 +99,15 @@ def encode_opacity(logits: np.ndarray) -> np.ndarray:
 def decode_rotation(coded: np.ndarray) -> np.ndarray:
     """Coded quaternion -> unit quaternion (identity where the norm is below QUAT_MIN_NORM)."""
     q = np.asarray(coded, dtype=np.float64)
-    norm = np.linalg.norm(q, axis=1, keepdims=True)
+    with np.errstate(over="ignore"):
+        norm = np.linalg.norm(q, axis=1, keepdims=True)
     small = norm[:, 0] < QUAT_MIN_NORM
     out = q / np.where(norm < QUAT_MIN_NORM, 1.0, norm)
     out[small] = (1.0, 0.0, 0.0, 0.0)
+    huge = np.isinf(norm[:, 0]) & np.isfinite(q).all(axis=1)
+    if huge.any():  # finite components whose squares overflow: scale first, the ratio is exact
+        scaled = q[huge] / np.abs(q[huge]).max(axis=1, keepdims=True)
+        out[huge] = scaled / np.linalg.norm(scaled, axis=1, keepdims=True)
     return out.astype(np.float32)
 
 

@@ -77,15 +77,12 @@ def _inflate_zlib(stored: bytes | memoryview, raw_length: int) -> bytes:
                            bool(inflater.unconsumed_tail), bool(inflater.unused_data))
 
 
-ZSTD_FRAME_MAGIC = b"\x28\xb5\x2f\xfd"
-"""First bytes of a (non-skippable) zstd frame."""
-
-
 def _inflate_zstd(stored: bytes | memoryview, raw_length: int) -> bytes:
     """Exactly one zstd frame that declares ``raw_length`` as its content size ([R-22], [R-24]).
 
     The declared content size bounds the output (libzstd refuses a frame that produces more than
-    it declares), so the frame can be inflated in one call without an output cap of our own.
+    it declares), so the frame is inflated in one call; anything after the frame, a skippable
+    frame, a missing checksum or a cut frame is refused.
     """
     if _zstd is None:
         raise FormatError("section is zstd-compressed but the 'zstandard' package is not "
@@ -110,6 +107,10 @@ def _inflate_zstd(stored: bytes | memoryview, raw_length: int) -> bytes:
     except _zstd.ZstdError as exc:
         raise FormatError(f"zstd frame is corrupt ({exc})", "decompression-failed") from None
     return _check_inflated(out, raw_length, inflater.eof, False, bool(inflater.unused_data))
+
+
+ZSTD_FRAME_MAGIC = b"\x28\xb5\x2f\xfd"
+"""First bytes of a (non-skippable) zstd frame."""
 
 
 def _check_inflated(out: bytes, raw_length: int, at_end: bool, more_output: bool,
@@ -198,6 +199,16 @@ def read_gzip_layer_ends(data: bytes | memoryview) -> list[int] | None:
             return None
         pos += 4 + size
     return None
+
+
+def gunzip_head(data: bytes | memoryview, size: int) -> bytes:
+    """Up to ``size`` inner bytes from the start of a gzip wrapper; fewer if it is short or
+    corrupt (:func:`gunzip` then reports why). Cheap: inflates no more than it returns."""
+    inflater = zlib.decompressobj(wbits=31)
+    try:
+        return inflater.decompress(data, size)
+    except zlib.error:
+        return b""
 
 
 def gunzip(data: bytes | memoryview, max_bytes: int) -> Gunzipped:

@@ -1,37 +1,48 @@
-"""Decoding Draco point-cloud blobs with the checks the spec requires ([R-47], [R-49], [R-58]).
+"""Decoding Draco point-cloud blobs with the checks the spec requires ([R-47], [R-54]).
 
-The blob's fixed header is checked *before* the Draco decoder runs: a hostile blob declaring a huge
-point count would otherwise make the decoder allocate for it (a 74-byte blob claiming 50 million
-points took 1.4 GB). DracoPy is a core dependency, but it is imported on first use so that reading
-PLY files or inspecting headers never loads the compiled library.
+DracoPy is a core dependency, but it is imported on first use so that reading PLY files or
+inspecting headers never loads the compiled library.
+
+The Draco library sizes its buffers from its own header before it finds out that the data is
+short: fuzzing showed a 300-byte blob whose point count field says 2^31 making it allocate
+gigabytes (the process is killed, no exception), and older bitstream versions of the kd-tree
+coder doing the same from other fields. So the blob's header is checked here first: a point
+cloud, in the bitstream version current encoders write, without Draco metadata (whose decoder
+allocates entry sizes read from the blob), declaring exactly the expected number of points.
 """
 
 from __future__ import annotations
-
-import struct
 
 import numpy as np
 
 from .errors import FormatError
 
 DRACO_MAGIC = b"DRACO"
-DRACO_HEADER_SIZE = 15
-"""Magic (5), version major and minor (2), encoder type (1), method (1), flags (2), point count (4)."""
+DRACO_POINT_CLOUD = 0
+DRACO_VERSIONS = {(2, 3)}
+"""Point-cloud bitstream versions accepted: what Draco 1.4 and later (and DracoPy) write."""
+DRACO_METHODS = {0, 1}
+"""Sequential and kd-tree encoding."""
+DRACO_METADATA_FLAG = 0x8000
+_DRACO_HEADER = 15
+"""magic (5), version major and minor, encoder type, method, flags (u16), point count (i32)."""
 
 
-def check_header(blob: bytes | memoryview, count: int, what: str) -> None:
-    """Validate a Draco point-cloud blob's fixed header against the declared point count ([R-49])."""
-    head = bytes(blob[:DRACO_HEADER_SIZE])
-    if len(head) < DRACO_HEADER_SIZE or head[:5] != DRACO_MAGIC:
+def check_draco_header(blob: bytes | memoryview, count: int, what: str) -> None:
+    """Refuse a blob before Draco allocates anything from it (see the module docstring)."""
+    head = bytes(blob[:_DRACO_HEADER])
+    if len(head) < _DRACO_HEADER or head[:5] != DRACO_MAGIC:
         raise FormatError(f"{what}: not a Draco blob", "draco-failed")
-    if head[5] != 2:
-        raise FormatError(f"{what}: Draco major version {head[5]} is not 2", "draco-failed")
-    if head[7] != 0:
-        raise FormatError(f"{what}: Draco blob is not a point cloud (encoder type {head[7]})",
-                          "draco-failed")
-    if struct.unpack_from("<H", head, 9)[0] != 0:
-        raise FormatError(f"{what}: Draco blob carries metadata or flags", "draco-failed")
-    declared = struct.unpack_from("<i", head, 11)[0]
+    version, kind, method = (head[5], head[6]), head[7], head[8]
+    flags = int.from_bytes(head[9:11], "little")
+    if kind != DRACO_POINT_CLOUD:
+        raise FormatError(f"{what}: Draco blob is not a point cloud (type {kind})", "draco-failed")
+    if version not in DRACO_VERSIONS or method not in DRACO_METHODS:
+        raise FormatError(f"{what}: Draco bitstream {version[0]}.{version[1]}, method {method} "
+                          f"is not supported", "draco-failed")
+    if flags & DRACO_METADATA_FLAG:
+        raise FormatError(f"{what}: Draco metadata is not supported", "draco-failed")
+    declared = int.from_bytes(head[11:15], "little", signed=True)
     if declared != count:
         raise FormatError(f"{what}: Draco blob declares {declared} points, expected {count}",
                           "draco-failed")
@@ -40,11 +51,11 @@ def check_header(blob: bytes | memoryview, count: int, what: str) -> None:
 def decode_points(blob: bytes | memoryview, count: int, what: str) -> np.ndarray:
     """Decode a Draco point cloud that must hold exactly ``count`` finite points, in decode order.
 
-    ``what`` names the blob in error messages (e.g. "sketch blob 3", "patch positions").
+    ``what`` names the blob in error messages (e.g. "sketch blob 3", "patch layer 2").
     """
-    check_header(blob, count, what)
     import DracoPy
 
+    check_draco_header(blob, count, what)
     try:
         decoded = DracoPy.decode(bytes(blob))
         points = np.asarray(decoded.points, dtype=np.float32).reshape(-1, 3)

@@ -40,11 +40,23 @@ class Limits:
     #: declare gigabytes of content.
     max_expansion_ratio: float = 1024.0
     expansion_floor_bytes: int = 64 * MIB
+    #: A file may declare more than ``gaussian_floor`` Gaussians only at up to this many per byte
+    #: of file: real files spend at least ~1 byte per Gaussian, and Draco can code thousands of
+    #: points per byte, so without this a 125 KB file could demand gigabytes of output.
+    max_gaussians_per_byte: float = 64.0
+    gaussian_floor: int = 1_000_000
 
     def check(self, what: str, value: int, limit: int) -> None:
         """Raise :class:`LimitError` naming ``what`` when ``value`` exceeds ``limit``."""
         if value > limit:
             raise LimitError(f"{what} is {value}, above the limit of {limit}")
+
+    def check_gaussian_density(self, gaussians: int, file_bytes: int) -> None:
+        """Refuse a file that declares far more Gaussians than its size can carry ([R-61])."""
+        allowed = max(self.gaussian_floor, int(self.max_gaussians_per_byte * file_bytes))
+        if gaussians > allowed:
+            raise LimitError(f"a {file_bytes}-byte file declares {gaussians} Gaussians (more "
+                             f"than {self.max_gaussians_per_byte:g} per byte)")
 
     def check_expansion(self, raw_total: int, file_bytes: int) -> None:
         """Refuse a file whose sections would inflate far beyond its own size."""

@@ -100,6 +100,27 @@ def test_gunzip_rejects_trailing_members_and_corruption():
     assert err.value.code == "bad-gzip"
 
 
+@pytest.mark.skipif(not zstd_available(), reason="zstandard not installed")
+def test_zstd_section_is_exactly_one_frame():
+    """[R-22], [R-24]: anything after the frame, or a skippable frame instead of one, is refused.
+
+    Found by fuzzing: the stream reader read past the frame, so a trailing skippable frame was
+    accepted and a trailing second frame was reported as length-mismatch.
+    """
+    import struct
+
+    raw = b"spcodec " * 40
+    frame = compress(Codec.ZSTD, raw)
+    skippable = struct.pack("<II", 0x184D2A50, 4) + b"abcd"
+    for stored, length in [(frame + skippable, len(raw)), (frame + compress(Codec.ZSTD, b""),
+                           len(raw)), (frame + b"\0", len(raw)), (skippable, 0),
+                           (frame[:-1], len(raw))]:
+        with pytest.raises(FormatError) as err:
+            decompress(Codec.ZSTD, stored, length)
+        assert err.value.code == "decompression-failed"
+    assert decompress(Codec.ZSTD, frame, len(raw)) == raw
+
+
 @pytest.mark.skipif(not zstd_available(), reason="zstandard is not installed")
 def test_zstd_sections_are_exactly_one_frame_with_its_size():
     import zstandard

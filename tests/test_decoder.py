@@ -235,6 +235,276 @@ def test_importing_the_decoder_keeps_heavy_packages_out():
     assert done.returncode == 0, done.stdout + done.stderr
 
 
+# ------------------------------------------------------------------ findings of the fuzzer
+def test_claimed_gaussian_counts_are_not_allocated_before_validation(small_scene):
+    """[R-60], [R-62]: output memory is sized by validated payloads, not by the layer table.
+
+    Found by fuzzing: a few-KB file whose layer table claimed 60 million Gaussians made the
+    decoder allocate ~14 GB of output before the cluster table refused the count.
+    """
+    import tracemalloc
+
+    def claim_sketch(layers):
+        layers[0].gaussian_count = 60_000_000
+
+    def claim_patch(layers):
+        layers[2].gaussian_count = 60_000_000
+
+    lenient = Limits(max_gaussians_per_byte=1e12)  # let the claim through to the payload checks
+    for edit in (claim_sketch, claim_patch):
+        data = forge(small_scene, layer_edit=edit)
+        assert error_code(data) == "limit-exceeded"  # the default density limit ([R-61])
+        tracemalloc.start()
+        try:
+            with pytest.raises(FormatError) as err:
+                spcodec.decode(data, limits=lenient)
+            assert err.value.code == "bad-section"
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert peak < 16 * 2**20, f"{peak / 2**20:.0f} MiB traced for a {len(data)}-byte file"
+
+
+def test_sketch_models_that_overflow_are_refused(small_scene):
+    """[R-34]: finite coefficients at huge normalized positions must not give inf or NaN.
+
+    Found by fuzzing: a half extent of 1e-40 made the degree-d monomials overflow, and the
+    decoder returned infinite scales (with numpy overflow warnings).
+    """
+    import copy
+    import warnings
+
+    scene = copy.deepcopy(small_scene)
+    scene.sketch[0].half_extent = np.array([1e-40, 1e-40, 1e-40], np.float32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert error_code(build_bitstream(scene)) == "bad-value"
+
+
+def test_huge_finite_rotation_models_decode_to_unit_quaternions(small_scene):
+    """[R-31]: q / |q| is a unit quaternion even when |q|^2 overflows binary64.
+
+    The naive norm overflowed to inf and gave the zero quaternion for a rotation model evaluating
+    to ~1e158. Since [R-42] bounds normalized coordinates, a file can no longer reach such values
+    (it is refused first); the mapping itself stays robust.
+    """
+    import copy
+
+    from spcodec.attributes import SketchAttribute, decode_rotation
+    from spcodec.polynomial import monomial_count
+
+    assert np.allclose(decode_rotation(np.array([[1e200, 1e200, 0.0, 0.0]])),
+                       [[2**-0.5, 2**-0.5, 0.0, 0.0]])
+    scene = copy.deepcopy(small_scene)
+    cluster = scene.sketch[0]
+    cluster.half_extent = np.full(3, 1e-16, np.float32)
+    rotation = np.zeros((monomial_count(10), 4), np.float16)
+    rotation[0, 0] = 1.0
+    rotation[monomial_count(9), :2] = 65504.0   # x^10 drives w and x
+    cluster.models = {SketchAttribute.SCALE: np.zeros((1, 3), np.float16),
+                      SketchAttribute.ROTATION: rotation,
+                      SketchAttribute.OPACITY: np.full((1, 1), 0.5, np.float16),
+                      SketchAttribute.COLOR_DC: np.zeros((1, 3), np.float16)}
+    assert error_code(build_bitstream(scene)) == "bad-value"
+
+
+@pytest.mark.parametrize("payload", [b"[" * 100_000, b'{"a":' * 50_000 + b"1" + b"}" * 50_000,
+                                     b'{"n": NaN}', b'{"i": -Infinity}'])
+def test_hostile_metadata_is_reported_as_bad_metadata(small_scene, payload):
+    """[R-70]: inspect reports unparsable metadata, it does not crash on it.
+
+    Found by fuzzing: deeply nested JSON raised RecursionError out of inspect(). NaN and
+    Infinity are Python extensions that are not JSON, and would make `info --json` invalid.
+    """
+    def hostile(sections):
+        sections[0].raw = payload
+    data = forge(small_scene, hostile)
+    info = spcodec.inspect(data)
+    assert info.metadata is None and "bad-metadata" in info.metadata_error
+    assert len(spcodec.decode(data)) == len(spcodec.decode(forge(small_scene)))
+
+
+def test_inspect_applies_the_metadata_limit(small_file):
+    """[R-60]: the metadata limit holds for inspect as it does for decode."""
+    info = spcodec.inspect(small_file, limits=Limits(max_metadata_bytes=4))
+    assert info.metadata is None and "limit-exceeded" in info.metadata_error
+
+
+def test_gzip_layer_offsets_that_do_not_fit_the_file_are_ignored(small_file):
+    """[R-83]: the SP subfield is advisory; one with the wrong count no longer breaks to_json.
+
+    Found by fuzzing: a wrapper whose SP list was shorter than the layer table made
+    ``inspect(...).to_json()`` raise IndexError.
+    """
+    import struct
+
+    from spcodec.codecs import crc32, gzip_wrap
+    from spcodec.writer import layer_end_offsets
+
+    ends = layer_end_offsets(small_file)
+    wrapped = bytearray(gzip_wrap(small_file, ends))
+    recorded = list(struct.unpack_from(f"<{len(ends)}Q", wrapped, 18))  # after XLEN, id, size, count
+    struct.pack_into(f"<{len(ends)}Q", wrapped, 18, *recorded[::-1])   # not increasing
+    header_end = 12 + struct.unpack_from("<H", wrapped, 10)[0]
+    struct.pack_into("<H", wrapped, header_end, crc32(bytes(wrapped[:header_end])) & 0xFFFF)
+    for data in (gzip_wrap(small_file, ends[:1]), bytes(wrapped)):    # too short; decreasing
+        info = spcodec.inspect(data)
+        assert info.gzip_layer_ends is None
+        assert [layer["end_offset"] for layer in info.to_json()["layers"]] == [None] * len(ends)
+        assert len(spcodec.decode(data)) == len(spcodec.decode(small_file))
+    good = spcodec.inspect(gzip_wrap(small_file, ends))
+    assert good.gzip_layer_ends == recorded
+
+
+def test_gzip_wrapper_inflates_no_further_than_the_inner_file_size(small_file):
+    """[R-84], [R-61]: a few KB of gzip must not inflate to hundreds of MB before a check.
+
+    The wrapper was inflated up to max_file_bytes (4 GiB) before the inner header was read, so
+    a gzip bomb (garbage, or a valid file followed by zeros) cost its whole inflated size,
+    twice. Now the inner header block is read first and its file_size caps the inflation.
+    """
+    import gzip
+    import tracemalloc
+
+    zeros = b"\0" * (32 << 20)
+    bombs = {"trailing-data": gzip.compress(small_file + zeros, 9),
+             "bad-magic": gzip.compress(zeros, 9)}
+    for code, bomb in bombs.items():
+        assert len(bomb) < 64 * 1024
+        for run in (lambda b=bomb: spcodec.decode(b),
+                    lambda b=bomb: spcodec.StreamDecoder().feed(b),
+                    lambda b=bomb: spcodec.inspect(b)):
+            tracemalloc.start()
+            try:
+                with pytest.raises(FormatError) as err:
+                    run()
+                peak = tracemalloc.get_traced_memory()[1]
+            finally:
+                tracemalloc.stop()
+            assert err.value.code == code
+            assert peak < 8 * 2**20, f"{peak / 2**20:.0f} MiB traced for a {len(bomb)}-byte bomb"
+
+
+def test_file_objects_are_read_in_bounded_chunks(small_file):
+    """A buffered file's read(n) allocates n bytes up front: one read(max_file_bytes + 1) cost
+    4 GiB of address space (MemoryError under a limit) for any file, however small."""
+    class Greedy(io.BytesIO):
+        def read(self, size=-1):
+            assert 0 <= size <= 1 << 24, f"read({size})"
+            return super().read(size)
+
+    assert spcodec.decode(Greedy(small_file)).equals(spcodec.decode(small_file))
+    with pytest.raises(LimitError):
+        spcodec.decode(Greedy(small_file), limits=Limits(max_file_bytes=len(small_file) - 1))
+
+
+def test_errors_are_reported_in_the_order_of_the_decoding_process(small_scene):
+    """Section 12: "the first failing check in the order of section 11". Step 7 verifies the
+    CRC of every section of every decoded layer (and inflates them) before steps 8-9 parse any.
+
+    Each file below has two faults; the decoder used to report the later one: it inflated and
+    parsed each section (even ran Draco on a layer's positions) before checking the CRC of the
+    next section.
+    """
+    def bad_crc(index):
+        def edit(sections):
+            sections[index].crc = 0xDEADBEEF
+        return edit
+
+    def corrupt_zlib(index):
+        def edit(sections):
+            sections[index].codec, sections[index].stored = Codec.ZLIB, b"\x78\x9c\xff\xff\xff"
+        return edit
+
+    def garbage_positions(sections):
+        sec = next(s for s in sections if s.type == SectionType.PATCH_POSITIONS)
+        sec.raw = bytes([3, 0, 0, 0]) + b"DRACO" + bytes(30)
+
+    def long_cluster_table(sections):
+        sections[1].raw += b"\0"
+
+    def both(*edits):
+        def edit(sections):
+            for e in edits:
+                e(sections)
+        return edit
+
+    # metadata, clusters, positions, coefficients | codebooks, positions, attributes | ...
+    assert error_code(forge(small_scene, both(corrupt_zlib(1), bad_crc(3)))) == "section-crc"
+    assert error_code(forge(small_scene, both(garbage_positions, bad_crc(6)))) == "section-crc"
+    assert error_code(forge(small_scene, both(long_cluster_table, bad_crc(8)))) == "section-crc"
+    # Step 7 runs layer by layer: a layer-0 inflation failure precedes a layer-2 CRC mismatch.
+    assert error_code(forge(small_scene, both(corrupt_zlib(1), bad_crc(8)))) == \
+        "decompression-failed"
+    # With only the first fault, its own code is reported.
+    assert error_code(forge(small_scene, long_cluster_table)) == "bad-section"
+    assert error_code(forge(small_scene, corrupt_zlib(1))) == "decompression-failed"
+    assert error_code(forge(small_scene, garbage_positions)) == "draco-failed"
+
+
+def _one_point_clusters(count: int) -> bytes:
+    """A file of ``count`` one-point sketch clusters sharing one Draco blob: identical records
+    and identical points compress to almost nothing, so the file is tiny."""
+    import DracoPy
+
+    from spcodec.container import CLUSTER_DTYPE
+    from spcodec.writer import LayerSpec
+
+    blob = DracoPy.encode(np.zeros((count, 3), np.float32), quantization_bits=1,
+                          compression_level=10, preserve_order=True)
+    records = np.zeros(count, CLUSTER_DTYPE)
+    records["point_count"] = 1
+    records["draco_length"][0] = len(blob)
+    records["half_extent"] = 1.0
+    records["degrees"] = [1, 1, 1, 1, 255]                   # linear models, no SH rest
+    coefficients = np.full(4 * (3 + 4 + 1 + 3) * count, 0.25, "<f2").tobytes()
+    table = count.to_bytes(4, "little") + records.tobytes()
+    sections = [SectionSpec(SectionType.SKETCH_CLUSTERS, 0, table, Codec.ZSTD),
+                SectionSpec(SectionType.SKETCH_POSITIONS, 0, blob, Codec.NONE),
+                SectionSpec(SectionType.SKETCH_COEFFICIENTS, 0, coefficients, Codec.ZSTD)]
+    return assemble(sections, [LayerSpec(LayerKind.SKETCH, count)], sh_degree=0)
+
+
+def test_many_tiny_clusters_decode_in_time_proportional_to_their_points():
+    """[R-1] (no hang): the sketch decoder looped over clusters at ~50 us each, so a file of a
+    few KB holding 200 000 one-point clusters took over 10 s; the limits admit 4 million."""
+    import time
+
+    data = _one_point_clusters(200_000)
+    assert len(data) < 8192
+    start = time.perf_counter()
+    cloud = spcodec.decode(data)
+    elapsed = time.perf_counter() - start
+    assert len(cloud) == 200_000 and cloud.is_finite()
+    assert elapsed < 3.0, f"{elapsed:.1f} s for {len(data)} bytes"
+
+
+def test_sketch_decoding_is_bit_exact_with_the_per_cluster_evaluation(small_scene):
+    """Small clusters are evaluated together, yet every Gaussian is bit-for-bit what
+    evaluate_models + fill_cluster give for its cluster alone (what the encoder predicts)."""
+    from spcodec.attributes import SketchAttribute
+    from spcodec.cloud import GaussianCloud
+    from spcodec.decoder.layers import SMALL_CLUSTER, evaluate_models, fill_cluster
+    from spcodec.polynomial import normalize_positions
+    from spcodec.synthetic import random_encoded_scene
+
+    scene = random_encoded_scene(seed=3, clusters=40, patch_layers=0, sh_degree=3)
+    sizes = [c.point_count for c in scene.sketch]
+    assert min(sizes) < SMALL_CLUSTER <= max(sizes)
+    cloud = spcodec.decode(build_bitstream(scene))
+    start = 0
+    for cluster in scene.sketch:
+        rows = slice(start, start + cluster.point_count)
+        start += cluster.point_count
+        x = normalize_positions(cloud.means[rows], cluster.center, cluster.half_extent)
+        values = evaluate_models(x, {a: cluster.models.get(a) for a in SketchAttribute})
+        alone = GaussianCloud.zeros(cluster.point_count, scene.sh_degree)
+        fill_cluster(alone, slice(None), values, scene.sh_degree)
+        for name, array in alone.arrays().items():
+            if name != "means":
+                assert getattr(cloud, name)[rows].tobytes() == array.tobytes(), name
+
+
 # ----------------------------------------------------------- findings of the spec review
 def test_positions_far_outside_the_cluster_frame_are_refused(small_scene):
     """[R-42]: a tiny frame with a high-degree model would evaluate to inf; it is bad-value."""
@@ -242,55 +512,6 @@ def test_positions_far_outside_the_cluster_frame_are_refused(small_scene):
     scene = copy.deepcopy(small_scene)
     scene.sketch[0].half_extent = np.full(3, 1e-20, np.float32)
     assert error_code(build_bitstream(scene)) == "bad-value"
-
-
-def test_a_draco_blob_declaring_another_count_is_refused_before_decoding(small_scene):
-    """[R-49]: the point count in the blob's header must be the declared one."""
-    import copy
-    scene = copy.deepcopy(small_scene)
-    blob = bytearray(scene.sketch[0].draco)
-    blob[11:15] = (50_000_000).to_bytes(4, "little")
-    scene.sketch[0].draco = bytes(blob)
-    with pytest.raises(FormatError, match="declares 50000000 points") as err:
-        spcodec.decode(build_bitstream(scene))
-    assert err.value.code == "draco-failed"
-
-
-def test_declared_counts_are_confirmed_before_output_is_allocated(small_scene):
-    """[R-60]: a small file claiming 64 M Gaussians in a patch layer costs no gigabytes."""
-    import tracemalloc
-
-    def claim(layers):
-        layers[1].gaussian_count = 64_000_000 - sum(layer.gaussian_count for layer in layers[2:]) \
-            - layers[0].gaussian_count
-    data = forge(small_scene, layer_edit=claim)
-    tracemalloc.start()
-    with pytest.raises(FormatError):
-        spcodec.decode(data)
-    peak = tracemalloc.get_traced_memory()[1]
-    tracemalloc.stop()
-    assert peak < 50 * 2**20, f"peak {peak / 2**20:.0f} MiB"
-
-
-def test_a_short_gzip_layer_table_is_ignored_by_inspect(small_scene):
-    """[R-83]: SP offsets that do not describe every layer are treated as absent."""
-    import struct
-    data = bytearray(build_bitstream(small_scene, WriteOptions(gzip=True)))
-    xlen_at = 10
-    sub_at = xlen_at + 2
-    count_at = sub_at + 4
-    assert bytes(data[sub_at:sub_at + 2]) == b"SP"
-    struct.pack_into("<H", data, count_at, 1)  # claim one layer (the header CRC is not set here:
-    flags = data[3] & ~2                        # drop FHCRC so the edit is not a gzip error)
-    data[3] = flags
-    del data[count_at + 2 + 8 * 3:count_at + 2 + 8 * 3 + 2]  # remove the 2-byte FHCRC field
-    info = spcodec.inspect(bytes(data)).to_json()
-    assert [layer["end_offset"] for layer in info["layers"]] == [None] * len(info["layers"])
-
-
-def test_inspect_applies_the_metadata_limit(small_file):
-    info = spcodec.inspect(small_file, limits=Limits(max_metadata_bytes=4))
-    assert info.metadata is None and "limit" in info.metadata_error
 
 
 def test_stream_decoder_agrees_with_decode(small_file):
@@ -311,3 +532,25 @@ def test_stream_decoder_agrees_with_decode(small_file):
         assert err.value.code == "bad-magic"
     with pytest.raises(UsageError):
         spcodec.StreamDecoder(max_layer=-1)
+
+
+def test_normalized_coordinates_beyond_two_are_refused_even_without_overflow(small_scene):
+    """[R-42]: |x| <= 2 is a rule of its own, not only a guard against overflow."""
+    import copy
+    scene = copy.deepcopy(small_scene)
+    cluster = scene.sketch[0]
+    cluster.half_extent = (cluster.half_extent / 2.5).astype(np.float32)  # points now reach ~2.5
+    assert error_code(build_bitstream(scene)) == "bad-value"
+    cluster.half_extent = (cluster.half_extent * 2.5 / 1.9).astype(np.float32)  # within 2: valid
+    assert len(spcodec.decode(build_bitstream(scene))) == len(spcodec.decode(build_bitstream(
+        small_scene)))
+
+
+def test_a_small_file_cannot_declare_millions_of_gaussians():
+    """[R-61]: more than 1 M Gaussians need at least one byte per 64 Gaussians of file."""
+    from spcodec.limits import Limits
+    limits = Limits()
+    limits.check_gaussian_density(1_000_000, 10)          # the floor admits small files
+    limits.check_gaussian_density(64 * 200_000, 200_000)  # 64 per byte
+    with pytest.raises(LimitError):
+        limits.check_gaussian_density(64 * 200_000 + 1, 200_000)

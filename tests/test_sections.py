@@ -203,3 +203,49 @@ def test_draco_positions_must_hold_the_layer_count():
     assert len(parse_positions(raw, 10)) == 10
     assert _code(lambda: parse_positions(raw, 11)) == "draco-failed"
     assert _code(lambda: parse_positions(raw[:-3], 10)) == "draco-failed"
+
+
+def test_draco_header_is_checked_before_draco_allocates(monkeypatch):
+    """[R-47], [R-58], [R-60]: a blob whose header could make Draco allocate is refused first.
+
+    Found by fuzzing: a 300-byte blob whose point count field said ~2^31 made DracoPy allocate
+    gigabytes (the process was killed by the kernel); relabelled bitstream versions did the same.
+    """
+    import struct
+
+    import DracoPy
+    points = np.random.default_rng(1).normal(size=(10, 3)).astype(np.float32)
+    blob = DracoPy.encode(points, preserve_order=True)
+    assert len(parse_positions(pack_positions(PatchPositions.draco(blob, points)), 10)) == 10
+
+    def edited(offset: int, fmt: str, value: int) -> bytes:
+        out = bytearray(blob)
+        struct.pack_into(fmt, out, offset, value)
+        return bytes(out)
+
+    hostile = [edited(11, "<i", 0x7FFFFFFF), edited(11, "<i", -1), edited(11, "<i", 11),
+               edited(6, "B", 0), edited(5, "B", 1), edited(7, "B", 1), edited(8, "B", 9),
+               edited(9, "<H", 0x8000), blob[:14], b"DRICO" + blob[5:]]
+
+    class Reached(BaseException):
+        """Not an Exception, so decode_points' own handler cannot swallow it."""
+
+    def no_draco(*args, **kwargs):
+        raise Reached("DracoPy.decode was reached")
+
+    monkeypatch.setattr(DracoPy, "decode", no_draco)
+    for bad in hostile:
+        raw = pack_positions(PatchPositions.draco(bad, points))
+        assert _code(lambda r=raw: parse_positions(r, 10)) == "draco-failed"
+
+
+def test_draco_blobs_with_extra_attributes_are_refused():
+    import DracoPy
+
+    from spcodec.draco_io import decode_points
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(6, 3)).astype(np.float32)
+    coloured = DracoPy.encode(pts, colors=(rng.random((6, 3)) * 255).astype(np.uint8))
+    with pytest.raises(FormatError, match="attributes besides positions") as err:
+        decode_points(coloured, 6, "test blob")
+    assert err.value.code == "draco-failed"

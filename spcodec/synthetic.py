@@ -183,22 +183,27 @@ def random_patch_layer(rng: np.random.Generator, codebooks: list[Codebook], n: i
     """A patch layer with random positions (in a random mode) and valid random indices."""
     xyz = rng.uniform(-20, 20, (n, 3))
     mode = PositionMode(int(rng.integers(0, 4))) if mode is None else mode
-    if mode == PositionMode.DRACO:
-        import DracoPy
-        blob = DracoPy.encode(xyz.astype(np.float32), quantization_bits=16, compression_level=1,
-                              preserve_order=True) if n else b""
-        decoded = np.asarray(DracoPy.decode(blob).points, np.float32).reshape(-1, 3) if n \
-            else np.zeros((0, 3), np.float32)
-        positions = PatchPositions.draco(blob, decoded)
-    elif mode == PositionMode.QUANT16:
-        positions = PatchPositions.quant16(xyz, 40.0 / 65535)
-    elif mode == PositionMode.FLOAT16:
-        positions = PatchPositions.float16(xyz)
-    else:
-        positions = PatchPositions.float32(xyz)
+    positions = positions_in_mode(xyz, mode, 40.0 / 65535)
     indices = {cb.attribute: rng.integers(0, cb.entries.shape[0], (n, cb.groups)).astype(np.uint8)
                for cb in codebooks}
     return PatchLayer(positions, indices)
+
+
+def positions_in_mode(xyz: np.ndarray, mode: PositionMode, quant_step: float) -> PatchPositions:
+    """Positions stored in ``mode`` (QUANT16 with ``quant_step``, DRACO order-preserving)."""
+    if mode == PositionMode.DRACO:
+        import DracoPy
+
+        if len(xyz) == 0:
+            return PatchPositions.draco(b"", np.zeros((0, 3), np.float32))
+        blob = DracoPy.encode(np.asarray(xyz, np.float32), quantization_bits=18,
+                              compression_level=1, preserve_order=True)
+        return PatchPositions.draco(blob, np.asarray(DracoPy.decode(blob).points).reshape(-1, 3))
+    if mode == PositionMode.QUANT16:
+        return PatchPositions.quant16(xyz, quant_step)
+    if mode == PositionMode.FLOAT16:
+        return PatchPositions.float16(xyz)
+    return PatchPositions.float32(xyz)
 
 
 def random_encoded_scene(seed: int = 0, clusters: int = 4, patch_layers: int = 2,

@@ -24,7 +24,7 @@ from spcodec.sections import (
     parse_sketch,
     read_coefficients,
 )
-from spcodec.synthetic import random_cluster, random_codebooks, random_sketch
+from spcodec.synthetic import positions_in_mode, random_cluster, random_codebooks, random_sketch
 
 LIMITS = Limits()
 
@@ -155,18 +155,7 @@ def test_index_checks():
 def test_positions_round_trip(mode, n, seed):
     rng = np.random.default_rng(seed)
     xyz = rng.uniform(-100, 100, (n, 3))
-    if mode == PositionMode.DRACO:
-        import DracoPy
-        blob = DracoPy.encode(xyz.astype(np.float32), quantization_bits=18, preserve_order=True) \
-            if n else b""
-        pos = PatchPositions.draco(blob, np.asarray(DracoPy.decode(blob).points).reshape(-1, 3)
-                                   if n else np.zeros((0, 3)))
-    elif mode == PositionMode.QUANT16:
-        pos = PatchPositions.quant16(xyz, 200.0 / 65535)
-    elif mode == PositionMode.FLOAT16:
-        pos = PatchPositions.float16(xyz)
-    else:
-        pos = PatchPositions.float32(xyz)
+    pos = positions_in_mode(xyz, mode, 200.0 / 65535)
     back = parse_positions(pack_positions(pos), n)
     assert back.mode == mode
     np.testing.assert_array_equal(back.data, pos.data)          # lossless storage (of the codes)

@@ -117,7 +117,7 @@ def decode_layers(source: Source, max_layer: int | None = None,
     limits = limits or DEFAULT_LIMITS
     if max_layer is not None and max_layer < 0:
         raise UsageError(f"max_layer must be >= 0, got {max_layer}")
-    data, gz = _unwrap(read_source(source, limits), limits)
+    data, _ = _unwrap(read_source(source, limits), limits)
     header = read_header(data, limits)
     last = _last_decodable_layer(header, len(data), max_layer)
     decoder = _LayerDecoder(header, limits)

@@ -9,14 +9,17 @@ extra to install when they are missing.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Callable, Sequence
 
-from .errors import FormatError, SpcodecError, UsageError
+from .errors import FormatError, Interrupted, SpcodecError, UsageError
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE = 0, 1, 2
 
@@ -108,10 +111,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def _add_encode(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", help="a trained 3DGS scene (.ply, INRIA layout or compressed.ply)")
     p.add_argument("-o", "--output", required=True, help="the .spc file to write")
-    p.add_argument("--no-retrain", action="store_true",
-                   help="encode without retraining the patch Gaussians (required in this version)")
     p.add_argument("--preset", choices=["lowrate", "balanced", "highrate"], default="balanced",
-                   help="rate/quality operating point (default: balanced)")
+                   help="rate/quality operating point: codebooks, sketch threshold and the "
+                   "patch downsample (default: balanced)")
     p.add_argument("--codec", choices=["zlib", "zstd"], default="zlib",
                    help="section codec (zlib: every decoder reads it; zstd: faster to decode)")
     p.add_argument("--gzip", action="store_true", help="wrap the file in gzip")
@@ -124,41 +126,160 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
     p.add_argument("--stats", metavar="FILE", help="also write the encode statistics as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress display")
 
+    size = p.add_argument_group("size")
+    size.add_argument("--target-size", metavar="SIZE",
+                      help="aim the file at SIZE bytes, within 5%% (e.g. 150k, 2MB, 300000; "
+                      "k/M decimal, KiB/MiB binary): sets how many patch Gaussians survive")
+    size.add_argument("--patch-downsample", type=float, metavar="N",
+                      help="keep 1/N of the patch Gaussians (N >= 1; preset default: lowrate 8, "
+                      "balanced 4, highrate 2)")
+    size.add_argument("--prune", choices=["importance", "uniform"], default=None,
+                      help="which patch Gaussians survive: largest blend weight over the training "
+                      "views (default) or uniformly at random (the paper's)")
+
+    train = p.add_argument_group("retraining")
+    train.add_argument("--no-retrain", action="store_true",
+                       help="skip retraining: code the patch as it is (fast, larger files)")
+    train.add_argument("--dataset", metavar="DIR", help="retrain against this dataset's training "
+                       "images (COLMAP, transforms.json or LLFF; its test split is held out); "
+                       "default: against renders of the input at sampled views (distillation)")
+    train.add_argument("--downscale", type=int, default=1,
+                       help="dataset image downscale factor (default: 1)")
+    train.add_argument("--iterations", type=int, default=None,
+                       help="retraining steps, one view each (default: 3000)")
+    train.add_argument("--finish-iterations", type=int, default=None,
+                       help="steps of the quantization-aware finish, 0 = off (default: 600)")
+    train.add_argument("--views", type=int, default=None,
+                       help="distillation: training views sampled around the input (default: 48)")
+    train.add_argument("--resolution", type=int, default=None,
+                       help="distillation: side of the training views in pixels (default: 400)")
+    train.add_argument("--up", default="-y", help="the scene's up axis for sampled views "
+                       "(default: -y, for COLMAP-derived scenes; e.g. +z)")
+    train.add_argument("--antialiased", action="store_true",
+                       help="render with Mip-Splatting's antialiased opacity (models trained so)")
+    train.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
+                       help="auto: CUDA with gsplat when available, else the CPU (default: auto)")
+    train.add_argument("--threads", type=int, default=None,
+                       help="CPU threads for training (default: torch's choice)")
+    train.add_argument("--checkpoint-every", type=int, default=500, metavar="N",
+                       help="rewrite the checkpoint OUTPUT.ckpt every N steps (default: 500; "
+                       "0 = only when interrupted)")
+    train.add_argument("--resume", action="store_true",
+                       help="continue an interrupted encode from OUTPUT.ckpt (same arguments)")
+
 
 @command("encode", "encode a 3DGS PLY into an .spc bitstream", _add_encode)
 def cmd_encode(args: argparse.Namespace) -> int:
-    import dataclasses
-
-    from .encoder.pipeline import EncoderConfig, encode
-    from .encoder.presets import preset_config
+    from .encoder.pipeline import encode
     from .encoder.progress import StageReporter, print_summary
     from .fileio import atomic_write, check_writable
     from .ply import read_ply
 
-    if not args.no_retrain:
-        raise UsageError("retraining is not available in this version: pass --no-retrain")
     check_writable(args.output)
     if args.stats:
         check_writable(args.stats)
-    config = preset_config(args.preset, EncoderConfig(
-        seed=args.seed, n_jobs=args.jobs, use_sketch=not args.no_sketch, codec=args.codec,
-        gzip=args.gzip))
-    if args.patch_layers is not None:
-        _check_positive(patch_layers=args.patch_layers)
-        config.patch = dataclasses.replace(config.patch, layers=args.patch_layers)
-    if args.tau_max is not None:
-        if not args.tau_max > 0:
-            raise UsageError(f"--tau-max must be positive, got {args.tau_max}")
-        config.refine = dataclasses.replace(config.refine, tau_max=args.tau_max)
+    config = encode_config(args)
+    control = run_control(args) if config.retrain is not None else None
     cloud = read_ply(args.input)
     reporter = StageReporter(enabled=not args.quiet)
-    result = encode(cloud, config, progress=reporter.stage, source_name=Path(args.input).name)
+    with _stop_on_ctrl_c(control):
+        result = encode(cloud, config, progress=reporter.stage, source_name=Path(args.input).name,
+                        dataset=args.dataset, control=control)
     atomic_write(args.output, result.data)
     stats = dict(result.stats, input_bytes=os.path.getsize(args.input), output=str(args.output))
     if args.stats:
         atomic_write(args.stats, (json.dumps(stats, indent=2) + "\n").encode())
     print_summary(stats)
     return EXIT_OK
+
+
+def encode_config(args: argparse.Namespace):
+    """The EncoderConfig the encode options describe (checked, with one-line errors)."""
+    import dataclasses
+
+    from .encoder.pipeline import EncoderConfig
+    from .encoder.presets import preset_config
+    from .encoder.ratecontrol import parse_size
+
+    retrain = not args.no_retrain
+    if not retrain:
+        given = [f"--{n.replace('_', '-')}" for n in ("dataset", "iterations", "finish_iterations",
+                                                      "views", "resolution", "resume")
+                 if getattr(args, n) not in (None, False)]
+        if given:
+            raise UsageError(f"{', '.join(given)} only apply to retraining: drop --no-retrain or "
+                             "them")
+    _check_positive(patch_layers=args.patch_layers, downscale=args.downscale, views=args.views,
+                    resolution=args.resolution, threads=args.threads)
+    for name in ("iterations", "finish_iterations", "checkpoint_every"):
+        if getattr(args, name) is not None and getattr(args, name) < 0:
+            raise UsageError(f"--{name.replace('_', '-')} must be >= 0, got {getattr(args, name)}")
+    if args.patch_downsample is not None and not args.patch_downsample >= 1:
+        raise UsageError(f"--patch-downsample must be at least 1, got {args.patch_downsample}")
+    if args.target_size is not None and args.patch_downsample is not None:
+        raise UsageError("--target-size chooses the downsample itself: give one of "
+                         "--target-size and --patch-downsample")
+    config = preset_config(args.preset, EncoderConfig(
+        seed=args.seed, n_jobs=args.jobs, use_sketch=not args.no_sketch, codec=args.codec,
+        gzip=args.gzip), retrain=retrain)
+    if args.target_size is not None:
+        config.target_size = parse_size(args.target_size)
+    if args.patch_layers is not None:
+        config.patch = dataclasses.replace(config.patch, layers=args.patch_layers)
+    if args.tau_max is not None:
+        if not args.tau_max > 0:
+            raise UsageError(f"--tau-max must be positive, got {args.tau_max}")
+        config.refine = dataclasses.replace(config.refine, tau_max=args.tau_max)
+    if retrain:
+        changes = {"up": args.up, "antialiased": args.antialiased, "downscale": args.downscale}
+        for name in ("patch_downsample", "prune", "iterations", "finish_iterations", "views",
+                     "resolution"):
+            if getattr(args, name) is not None:
+                changes[name] = getattr(args, name)
+        config.retrain = dataclasses.replace(config.retrain, **changes)
+    elif args.patch_downsample is not None or args.prune is not None:
+        raise UsageError("--patch-downsample and --prune need retraining (without it, give "
+                         "--target-size to prune by importance)")
+    return config
+
+
+def run_control(args: argparse.Namespace):
+    """Device, threads, checkpoint and the resume hint of a retraining encode."""
+    import shlex
+
+    from .encoder.retrain import RunControl
+    from .encoder.training.checkpoint import checkpoint_path
+
+    if args.threads is not None:
+        import torch
+        torch.set_num_threads(args.threads)
+    argv = [a for a in sys.argv[1:] if a != "--resume"] + ["--resume"]
+    return RunControl(device=args.device, checkpoint=checkpoint_path(args.output),
+                      checkpoint_every=args.checkpoint_every, resume=args.resume,
+                      resume_hint="spcodec " + shlex.join(argv))
+
+
+@contextlib.contextmanager
+def _stop_on_ctrl_c(control):
+    """While training, the first Ctrl-C asks the loop to stop after its current step (it then
+    writes a checkpoint); outside training, or on a second Ctrl-C, it interrupts at once."""
+    if control is None or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        if control.stoppable and not control.stop.is_set():
+            control.stop.set()
+            print("\nstopping after this step and saving a checkpoint (Ctrl-C again to abort)",
+                  file=sys.stderr, flush=True)
+        else:
+            raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 # ---------------------------------------------------------------------------- eval, render
@@ -315,6 +436,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.handler(args) or EXIT_OK)
     except KeyboardInterrupt:
         _fail("interrupted")
+        return 130
+    except Interrupted as exc:
+        _fail(str(exc))
         return 130
     except Exception as exc:  # noqa: BLE001 - the one place that turns errors into one line
         if args.debug:

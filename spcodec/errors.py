@@ -21,6 +21,11 @@ class UsageError(SpcodecError, ValueError):
     """A caller asked for something that cannot be done (bad option, unwritable path...)."""
 
 
+class Interrupted(SpcodecError):
+    """A long job (a retraining encode) stopped on request after saving what it needs to
+    continue; the message says how to resume."""
+
+
 class FormatError(SpcodecError, ValueError):
     """An input file (bitstream or PLY) is malformed, unsupported or exceeds a limit.
 

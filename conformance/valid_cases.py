@@ -45,7 +45,7 @@ def _gzip(inner: bytes) -> bytes:
 @valid("sh0-zlib-two-layers",
        "SH 0, zlib sections, three kd-tree sketch clusters, QUANT16 and float16 patch layers",
        ["R-2", "R-30", "R-31", "R-32", "R-40", "R-41", "R-43", "R-44", "R-47", "R-48", "R-50",
-        "R-52", "R-54", "R-55", "R-56", "R-57", "R-11", "R-98"], prefixes=True)
+        "R-52", "R-54", "R-55", "R-56", "R-57", "R-11", "R-96", "R-98"], prefixes=True)
 def sh0_zlib() -> bytes:
     return _file(scenes.scene(1, 0, [7, 5, 9], [PositionMode.QUANT16, PositionMode.FLOAT16], 12,
                               metadata={"generator": "spcodec conformance"}))
@@ -109,7 +109,7 @@ def zstd_checksums() -> bytes:
 # ----------------------------------------------------------------------- the sketch layer
 @valid("sketch-degrees-0-to-10",
        "SH 0, eleven clusters whose four models take every polynomial degree from 0 to 10",
-       ["R-41", "R-43", "R-44", "R-45", "R-46"])
+       ["R-41", "R-43", "R-44", "R-45", "R-46", "R-96"])
 def sketch_degrees() -> bytes:
     rng = np.random.default_rng(7)
     clusters = [scenes.cluster(rng, 0, 6, scenes.degrees(d, (d + 3) % 11, (d + 6) % 11,
@@ -293,7 +293,7 @@ def _cycle_indices(books: list[Codebook], n: int) -> dict[PatchAttribute, np.nda
        "Codebook entries at the binary16 extremes, a zero quaternion, clamped opacities, 256 and "
        "1-entry books; positions at the float16 and float32 extremes; QUANT16 with a -0.0 step, "
        "wrapping deltas and origin + 65535 step just below the float32 maximum",
-       ["R-31", "R-32", "R-51", "R-52", "R-53", "R-54", "R-55", "R-56"])
+       ["R-31", "R-32", "R-34", "R-51", "R-52", "R-53", "R-54", "R-55", "R-56", "R-96"])
 def extreme_patch() -> bytes:
     books = _extreme_codebooks()
     n = 8
@@ -313,7 +313,7 @@ def extreme_patch() -> bytes:
 @valid("extreme-sketch-values",
        "Sketch models with binary16-extreme and subnormal coefficients, opacities coded outside "
        "[0, 1], normalized coordinates of exactly 2, a one-point cluster",
-       ["R-31", "R-32", "R-42", "R-43", "R-45"])
+       ["R-31", "R-32", "R-34", "R-42", "R-43", "R-45", "R-96"])
 def extreme_sketch() -> bytes:
     rng = np.random.default_rng(19)
     wide = scenes.cluster(rng, 0, 6, scenes.degrees(1, 1, 1, 1))

@@ -339,3 +339,37 @@ def test_the_runner_imports_no_heavy_packages():
             "print(heavy, report.ok); sys.exit(1 if heavy or not report.ok else 0)")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stdout + done.stderr
+
+
+FAKE_MYDEC = r'''#!PYTHON
+"""A decoder with another interface: mydec -i IN -o OUT [-k K]; errors as 'ERROR <code>'."""
+import argparse, sys
+import spcodec
+parser = argparse.ArgumentParser()
+parser.add_argument("-i"); parser.add_argument("-o"); parser.add_argument("-k", type=int)
+args = parser.parse_args()
+try:
+    cloud = spcodec.decode(args.i, max_layer=args.k)
+except spcodec.FormatError as exc:
+    sys.exit(f"ERROR {exc.code}: {exc.args[0]}")
+spcodec.write_ply(args.o, cloud)
+'''
+
+
+def test_the_readme_worked_example_plugs_in_another_decoder(tmp_path, monkeypatch, capsys):
+    """The wrapper script of conformance/README.md, run as written, meets the contract."""
+    readme = (SUITE_DIR / "README.md").read_text(encoding="utf-8")
+    start = readme.index("#!/bin/sh\n# mydec-conformance")
+    wrapper = tmp_path / "mydec-conformance"
+    wrapper.write_text(readme[start:readme.index("```", start)])
+    tools = tmp_path / "bin"
+    tools.mkdir()
+    (tools / "mydec").write_text(FAKE_MYDEC.replace("PYTHON", sys.executable))
+    (tools / "mydec-to-ply").write_text('#!/bin/sh\ncp "$1" "$2"\n')
+    for path in (wrapper, tools / "mydec", tools / "mydec-to-ply"):
+        path.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{tools}:{__import__('os').environ['PATH']}")
+    status = main(["conformance", "--decoder", f"{wrapper} {{input}} {{output}}",
+                   "--max-layer-arg", "{k}", "--only", "cut-inside-layer-1", "gzip-magic-only"])
+    out = capsys.readouterr().out
+    assert status == 0 and "4 passed, 0 failed" in out, out

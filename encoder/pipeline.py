@@ -104,12 +104,7 @@ def validate_input(cloud: GaussianCloud) -> None:
     """One-line errors for inputs the encoder cannot take."""
     if len(cloud) == 0:
         raise UsageError("the scene has no Gaussians to encode")
-    for name, array in cloud.arrays().items():
-        bad = ~np.isfinite(array)
-        if bad.any():
-            rows = np.unique(np.nonzero(bad)[0])
-            raise FormatError(f"{len(rows)} Gaussians have NaN or infinite {name} (first: "
-                              f"#{rows[0]}); clean the scene before encoding", "ply-invalid")
+    cloud.check_finite()
     if cloud.sh_degree > 3:  # pragma: no cover - GaussianCloud already enforces 0..3
         raise FormatError("SH degree above 3", "ply-invalid")
 

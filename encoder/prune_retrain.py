@@ -26,7 +26,7 @@ from .render import resolve_device
 from .retrain import RetrainConfig, RetrainStage, RunControl, spread
 from .training.checkpoint import Checkpointer, fingerprint
 from .training.prune import kept_count, prune_by_importance, select
-from .training.targets import Targets, check_cameras_see, dataset_targets, distillation_targets
+from .training.targets import Targets, check_targets, dataset_targets, distillation_targets
 
 if TYPE_CHECKING:
     from .pipeline import EncoderConfig, ProgressFactory, SceneWriter, SketchOutcome
@@ -64,7 +64,7 @@ def encode_pruned_patch(cloud: GaussianCloud, sketch: "SketchOutcome", patch: Ga
     stage = progress("targets", None)
     targets = build_targets(cloud, view_config, dataset, device)
     settings = view_config.render_settings(targets.background)
-    check_cameras_see(cloud, targets, settings, device)
+    stats["psnr_input"] = check_targets(cloud, targets, settings, device, dataset)
     weights = blend_weights(cloud, spread(targets.cameras, view_config.importance_views),
                             settings, device)[sketch.patch_idx]
     stage.done(f"{len(targets.views)} {targets.mode} views, patch ranked by blend weight")

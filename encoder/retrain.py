@@ -24,7 +24,6 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
@@ -44,15 +43,6 @@ from .training.optim import FreeGaussians, LearningRates
 from .training.prune import PruneMethod, select
 from .training.quantaware import CodebookGaussians, with_positions
 from .training.targets import Targets
-
-MISMATCH_PSNR_DB = 15.0
-"""At iteration 0 the model should already resemble its targets; below this PSNR it likely does
-not belong to them (another scene, another coordinate frame)."""
-
-
-class TargetMismatchWarning(UserWarning):
-    """The model and its training targets look unrelated (PSNR under 15 dB before training)."""
-
 
 @dataclass
 class RetrainConfig:
@@ -172,7 +162,6 @@ class RetrainStage:
         model = FreeGaussians(survivors, self.device, self.config.rates, self.targets.extent)
         loop = self._loop(model, self.config.iterations)
         stats["psnr_before"] = loop.mean_psnr()
-        warn_if_unrelated(stats["psnr_before"], self.targets)
         start = time.perf_counter()
         saved = self.saved
         if saved is not None and saved["stage"] != "retrain":
@@ -285,14 +274,6 @@ def spread(items: list, count: int) -> list:
         return list(items)
     picks = np.unique(np.linspace(0, len(items) - 1, count).round().astype(int))
     return [items[i] for i in picks]
-
-
-def warn_if_unrelated(psnr: float, targets: Targets) -> None:
-    if psnr < MISMATCH_PSNR_DB:
-        what = "dataset images" if targets.mode == "dataset" else "renders of the original"
-        warnings.warn(f"before training the model reaches only {psnr:.1f} dB against the "
-                      f"{what}: the model and the images may not belong together (another scene, "
-                      "another coordinate frame or up axis?)", TargetMismatchWarning, stacklevel=3)
 
 
 def _cloud_state(cloud: GaussianCloud) -> dict[str, torch.Tensor]:

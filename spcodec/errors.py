@@ -47,6 +47,13 @@ class TruncatedError(FormatError):
 
     default_code = "truncated"
 
+    def __init__(self, message: str, code: str | None = None,
+                 complete_layers: int | None = None) -> None:
+        super().__init__(message, code)
+        #: How many leading layers the data holds whole (None: not known). When positive, they
+        #: decode with ``max_layer=complete_layers - 1``, which a tool can suggest.
+        self.complete_layers = complete_layers
+
 
 class ChecksumError(FormatError):
     """A CRC-32 does not match the bytes it covers."""

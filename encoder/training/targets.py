@@ -24,6 +24,7 @@ from spcodec.errors import UsageError
 
 from ..cameras import Camera
 from ..render import GaussianParams, RenderSettings, render
+from .loss import psnr_of
 from .optim import camera_extent
 
 TargetMode = Literal["distillation", "dataset"]
@@ -86,16 +87,28 @@ def dataset_targets(dataset, device: torch.device, max_views: int | None = None)
     return Targets(views, background, "dataset")
 
 
-def check_cameras_see(model: GaussianCloud, targets: Targets, settings: RenderSettings,
-                      device: torch.device) -> float:
-    """Mean accumulated opacity of ``model`` over the target views; a UsageError when it is below
-    :data:`MIN_VISIBLE_ALPHA` (cameras that look away from the model cannot train it)."""
+def check_targets(model: GaussianCloud, targets: Targets, settings: RenderSettings,
+                  device: torch.device, source: str | None = None) -> float:
+    """Refuse targets whose cameras do not see ``model`` (a UsageError when it covers less than
+    :data:`MIN_VISIBLE_ALPHA` of their pixels on average: nothing could be trained), and warn
+    when dataset images and model look unrelated before any training (the evaluation's
+    :func:`~spcodec.encoder.evaluate.warn_if_mismatched`). Returns the mean PSNR of ``model``
+    over the targets."""
+    from ..evaluate import warn_if_mismatched
+
     params = GaussianParams.from_cloud(model, device)
+    alphas, psnrs = [], []
     with torch.no_grad():
-        alphas = [float(render(params, v.camera, settings).alpha.mean()) for v in targets.views]
+        for view in targets.views:
+            result = render(params, view.camera, settings)
+            alphas.append(float(result.alpha.mean()))
+            psnrs.append(psnr_of(result.image, view.image))
     mean = float(np.mean(alphas)) if alphas else 0.0
     if mean < MIN_VISIBLE_ALPHA:
         raise UsageError(f"the training cameras do not see the model (it covers {mean:.2%} of "
                          "their pixels on average): are the dataset and the PLY of the same scene "
                          "and coordinate frame?")
-    return mean
+    psnr = float(np.mean(psnrs))
+    if targets.mode == "dataset":
+        warn_if_mismatched(psnr, source)
+    return psnr

@@ -44,6 +44,7 @@ from .training.prune import PruneMethod, select
 from .training.quantaware import CodebookGaussians, with_positions
 from .training.targets import Targets
 
+
 @dataclass
 class RetrainConfig:
     """Settings of the retraining stage (stored in the file's metadata)."""

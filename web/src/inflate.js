@@ -171,15 +171,15 @@ export class RawInflater {
     const keepFrom = this.pos >>> 3;
     const keep = this.inputLength - keepFrom;
     const need = keep + chunk.length + INPUT_PADDING;
-    if (need > this.input.length || keepFrom > 0) {
-      const input = need > this.input.length ? new Uint8Array(Math.max(need, keep * 2 + 1024))
-        : this.input;
-      input.copyWithin(0, keepFrom, this.inputLength);
-      if (input !== this.input) input.set(this.input.subarray(keepFrom, this.inputLength));
-      this.input = input;
-      this.pos -= keepFrom * 8;
-      this.inputLength = keep;
+    if (need > this.input.length) {
+      const bigger = new Uint8Array(Math.max(need, 2 * keep + 1024));
+      bigger.set(this.input.subarray(keepFrom, this.inputLength));
+      this.input = bigger;
+    } else if (keepFrom > 0) {
+      this.input.copyWithin(0, keepFrom, this.inputLength);
     }
+    this.pos -= keepFrom * 8;
+    this.inputLength = keep;
     this.input.set(chunk, this.inputLength);
     this.inputLength += chunk.length;
     this.input.fill(0, this.inputLength, this.inputLength + INPUT_PADDING);

@@ -110,6 +110,7 @@ export function decodePoints(M, blob, count, what) {
     const points = new Float32Array(n * 3);
     if (n > 0) {
       ptr = M._malloc(bytes);
+      if (!ptr) dracoFailed(`${what}: the Draco decoder cannot hold ${n} points`);
       if (!decoder.GetAttributeDataArrayForAllPoints(cloud, attribute, M.DT_FLOAT32, bytes, ptr)) {
         dracoFailed(`${what}: Draco positions cannot be read`);
       }

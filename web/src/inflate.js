@@ -16,6 +16,8 @@
  * then undone: the decoder waits for more input, or fails when the input has ended.
  */
 
+import { allocate } from './errors.js';
+
 export const INPUT_PADDING = 16;
 
 const LEN_BASE = new Uint16Array([3, 4, 5, 6, 7, 8, 9, 10, 11, 13, 15, 17, 19, 23, 27, 31, 35, 43,
@@ -120,7 +122,7 @@ export class RawInflater {
     this.growable = Boolean(options.growable);
     const first = this.growable ? Math.min(cap, options.initialCapacity ?? 1 << 16) : cap;
     /** @type {Uint8Array} */
-    this.out = new Uint8Array(first);
+    this.out = allocate(Uint8Array, first);
     this.outLength = 0;
     /** @type {Uint8Array} input bytes, followed by at least INPUT_PADDING zeros */
     this.input = new Uint8Array(INPUT_PADDING);
@@ -330,7 +332,7 @@ export class RawInflater {
     const need = this.outLength + n;
     if (need <= this.out.length) return;
     if (need > this.cap) throw new OutputLimitError(`output passes ${this.cap} bytes`);
-    const bigger = new Uint8Array(Math.min(this.cap, Math.max(need, this.out.length * 2)));
+    const bigger = allocate(Uint8Array, Math.min(this.cap, Math.max(need, this.out.length * 2)));
     bigger.set(this.out.subarray(0, this.outLength));
     this.out = bigger;
   }

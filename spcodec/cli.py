@@ -36,23 +36,30 @@ def command(name: str, help_text: str, configure: Configure):
 # --------------------------------------------------------------------------------- decode
 def _add_decode(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", help="an .spc file (gzip-wrapped or not), or a prefix of one")
-    p.add_argument("-o", "--output", required=True, help="the PLY to write (INRIA layout)")
+    p.add_argument("-o", "--output", required=True,
+                   help="the file to write: a 3DGS PLY (INRIA layout), or with a .glb name a "
+                   "binary glTF with KHR_gaussian_splatting")
     p.add_argument("--max-layer", type=int, default=None,
                    help="decode layers 0..K only (0 = the sketch layer alone)")
 
 
-@command("decode", "decode an .spc file into a 3DGS PLY", _add_decode)
+@command("decode", "decode an .spc file into a 3DGS PLY or a glTF (.glb)", _add_decode)
 def cmd_decode(args: argparse.Namespace) -> int:
     from .decoder import decode_layers
     from .fileio import check_writable
+    from .gltf import write_glb
     from .ply import write_ply
 
+    suffix = Path(args.output).suffix.lower()
+    if suffix == ".gltf":
+        raise UsageError(f"cannot write {args.output}: name it .glb (binary glTF); text .gltf with "
+                         "a separate buffer is not supported")
     check_writable(args.output)
     start = time.perf_counter()
     result = decode_layers(args.input, max_layer=args.max_layer)
     elapsed = time.perf_counter() - start
     cloud = result.cloud
-    write_ply(args.output, cloud)
+    (write_glb if suffix == ".glb" else write_ply)(args.output, cloud)
     counts = ", ".join(f"L{layer.index} {len(layer.cloud)}" for layer in result.layers)
     print(f"decoded {len(cloud)} Gaussians ({counts}) in {elapsed * 1000:.0f} ms -> {args.output}")
     return EXIT_OK
@@ -86,6 +93,41 @@ def cmd_info(args: argparse.Namespace) -> int:
               f"offset {s['offset']:>10}  {s['length']:>10} bytes  (raw {s['raw_length']})")
     if doc["metadata"]:
         print("metadata: " + json.dumps(doc["metadata"], sort_keys=True)[:200])
+    return EXIT_OK
+
+
+# ---------------------------------------------------------------------------------- serve
+def _add_serve(p: argparse.ArgumentParser) -> None:
+    p.add_argument("input", help="the .spc file to show (the viewer opens it at /)")
+    p.add_argument("--port", type=int, default=8000, help="TCP port (default 8000; 0 = any free)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to bind (default 127.0.0.1: this machine only)")
+    p.add_argument("--throttle", type=float, metavar="KBPS", default=None,
+                   help="send the scene at this many kilobits per second (e.g. 20000 for "
+                   "20 Mbit/s), to watch layers arrive as on a slow connection")
+    p.add_argument("--log", action="store_true", help="log every request on stderr")
+
+
+@command("serve", "serve the streaming web viewer and an .spc (with HTTP range requests)",
+         _add_serve)
+def cmd_serve(args: argparse.Namespace) -> int:
+    from .serve import make_server, viewer_missing
+
+    server = make_server([args.input], host=args.host, port=args.port,
+                         throttle_kbps=args.throttle, log=args.log)
+    host, port = server.server_address[:2]
+    shown = f"[{host}]" if ":" in host else host
+    problem = viewer_missing()
+    if problem:
+        print(f"spcodec: warning: {problem}; serving the file alone", file=sys.stderr)
+    speed = f", throttled to {args.throttle:g} kbit/s" if args.throttle else ""
+    print(f"serving {args.input}{speed}: open http://{shown}:{port}/  (Ctrl-C stops)", flush=True)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        print("stopped")
+    finally:
+        server.server_close()
     return EXIT_OK
 
 

@@ -12,6 +12,8 @@
 // browser tests and the benchmark read.
 
 import * as pc from 'playcanvas';
+import { browserDraco } from './draco-browser.js';
+import { createApp, frameWatcher } from './engine.js';
 import { streamSpc } from './ranges.js';
 import { frameBounds, robustBounds, toGSplatData } from './splats.js';
 
@@ -91,51 +93,6 @@ function numbers(name, count) {
 }
 
 // ------------------------------------------------------------------------------- the renderer
-async function createApp() {
-  const width = Number(params.get('width')) || 0;
-  const height = Number(params.get('height')) || 0;
-  if (width && height) {
-    canvas.style.width = `${width}px`;
-    canvas.style.height = `${height}px`;
-  }
-  const device = await pc.createGraphicsDevice(canvas, {
-    deviceTypes: [pc.DEVICETYPE_WEBGL2], antialias: false, preserveDrawingBuffer: true,
-  });
-  const options = new pc.AppOptions();
-  options.graphicsDevice = device;
-  options.componentSystems = [pc.CameraComponentSystem, pc.RenderComponentSystem, pc.GSplatComponentSystem];
-  options.resourceHandlers = [pc.ContainerHandler, pc.GSplatHandler, pc.TextureHandler];
-  const app = new pc.AppBase(canvas);
-  app.init(options);
-  if (width && height) {
-    app.setCanvasFillMode(pc.FILLMODE_NONE, width, height);
-    app.setCanvasResolution(pc.RESOLUTION_FIXED, width, height);
-  } else {
-    app.setCanvasFillMode(pc.FILLMODE_FILL_WINDOW);
-    app.setCanvasResolution(pc.RESOLUTION_AUTO);
-    window.addEventListener('resize', () => app.resizeCanvas());
-  }
-  app.start();
-  const gl = device.gl;
-  state.renderer = gl ? gl.getParameter(gl.RENDERER) : device.deviceType;
-  return app;
-}
-
-/** Calls back once a frame that includes every change made before `watch` was called is on
- * screen (PlayCanvas's frame:ready with up-to-date sorting, after at least one more frame). */
-function frameWatcher(app) {
-  let frame = 0;
-  const waiting = [];
-  app.on('frameend', () => { frame++; });
-  app.systems.gsplat.on('frame:ready', (camera, layer, ready, loadingCount) => {
-    if (!ready || loadingCount) return;
-    const due = waiting.filter((w) => frame > w.frame);  // in the order they were added
-    due.forEach((w) => w.resolve());
-    waiting.splice(0, waiting.length, ...waiting.filter((w) => frame <= w.frame));
-  });
-  return () => new Promise((resolve) => waiting.push({ frame, resolve }));
-}
-
 function createCamera(app) {
   const camera = new pc.Entity('camera');
   camera.addComponent('camera', { clearColor: new pc.Color(0, 0, 0, 1), fov: 50 });
@@ -195,27 +152,6 @@ function orbit(camera, view) {
 }
 
 // ------------------------------------------------------------------------------- the scenes
-/** The draco3d package ships only its node build, an Emscripten script that also runs in a
- * browser as a classic script (it defines `DracoDecoderModule`); the decoder creates the module
- * through this factory the first time a layer holds a Draco blob. */
-function browserDraco() {
-  const base = new URL('../../node_modules/draco3d/', import.meta.url);
-  return async () => {
-    if (!window.DracoDecoderModule) {
-      await new Promise((resolve, reject) => {
-        const script = document.createElement('script');
-        script.src = new URL('draco_decoder_nodejs.js', base).href;
-        script.onload = resolve;
-        script.onerror = () => reject(new Error('cannot load the Draco decoder script'));
-        document.head.appendChild(script);
-      });
-    }
-    const wasm = await fetch(new URL('draco_decoder.wasm', base));
-    if (!wasm.ok) throw new Error(`cannot load the Draco decoder (HTTP ${wasm.status})`);
-    return window.DracoDecoderModule({ wasmBinary: await wasm.arrayBuffer() });
-  };
-}
-
 async function showSpc(app, camera, whenShown) {
   const spc = await import('../../src/index.js');
   spc.configureDraco(browserDraco());
@@ -317,7 +253,9 @@ async function showAsset(app, camera, whenShown) {
 async function main() {
   showProgress();
   if (!src) return;
-  const app = await createApp();
+  const app = await createApp(canvas, Number(params.get('width')) || 0, Number(params.get('height')) || 0);
+  const gl = app.graphicsDevice.gl;
+  state.renderer = gl ? gl.getParameter(gl.RENDERER) : app.graphicsDevice.deviceType;
   const camera = createCamera(app);
   const whenShown = frameWatcher(app);
   state.status = 'loading';

@@ -98,7 +98,8 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------------- serve
 def _add_serve(p: argparse.ArgumentParser) -> None:
-    p.add_argument("input", help="the .spc file to show (the viewer opens it at /)")
+    p.add_argument("input", help="the scene to show at /: an .spc (streamed layer by layer), or a "
+                   ".ply or .glb (loaded whole, for comparison)")
     p.add_argument("--port", type=int, default=8000, help="TCP port (default 8000; 0 = any free)")
     p.add_argument("--host", default="127.0.0.1",
                    help="address to bind (default 127.0.0.1: this machine only)")

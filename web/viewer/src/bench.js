@@ -35,11 +35,17 @@ window.spcBench = {
   /** Request, decode and hand an .spc to PlayCanvas (GSplatData, then a GPU resource); ms. */
   async spcToResource(url) {
     const start = performance.now();
-    const cloud = await decode(await fetchBytes(url));
-    const resource = new pc.GSplatResource(app.graphicsDevice, toGSplatData(pc, cloud));
-    const ms = performance.now() - start;
+    const bytes = await fetchBytes(url);
+    const fetched = performance.now();
+    const cloud = await decode(bytes);
+    const decoded = performance.now();
+    const data = toGSplatData(pc, cloud);
+    const converted = performance.now();
+    const resource = new pc.GSplatResource(app.graphicsDevice, data);
+    const end = performance.now();
     resource.destroy();
-    return { ms, gaussians: cloud.count };
+    return { ms: end - start, fetchMs: fetched - start, decodeMs: decoded - fetched,
+      convertMs: converted - decoded, resourceMs: end - converted, gaussians: cloud.count };
   },
 
   /** The same for a PLY through PlayCanvas's own PLY loader (it builds the same resource); ms. */

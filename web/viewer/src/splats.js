@@ -16,27 +16,31 @@
 export function plyProperties(cloud) {
   const n = cloud.count;
   const props = new Map();
-  const split = (source, width, names) => {
-    names.forEach((name, c) => {
-      const column = new Float32Array(n);
-      for (let i = 0; i < n; i++) column[i] = source[i * width + c];
-      props.set(name, column);
-    });
-  };
-  split(cloud.positions, 3, ['x', 'y', 'z']);
-  split(cloud.shDC, 3, ['f_dc_0', 'f_dc_1', 'f_dc_2']);
+  const columns = (names) => names.map((name) => {
+    const column = new Float32Array(n);
+    props.set(name, column);
+    return column;
+  });
+  deinterleave(cloud.positions, n, columns(['x', 'y', 'z']));
+  deinterleave(cloud.shDC, n, columns(['f_dc_0', 'f_dc_1', 'f_dc_2']));
   props.set('opacity', Float32Array.from(cloud.opacities));
-  split(cloud.scales, 3, ['scale_0', 'scale_1', 'scale_2']);
-  split(cloud.rotations, 4, ['rot_0', 'rot_1', 'rot_2', 'rot_3']);
+  deinterleave(cloud.scales, n, columns(['scale_0', 'scale_1', 'scale_2']));
+  deinterleave(cloud.rotations, n, columns(['rot_0', 'rot_1', 'rot_2', 'rot_3']));
   const k = (cloud.shDegree + 1) ** 2 - 1;
-  for (let channel = 0; channel < 3; channel++) {
-    for (let coef = 0; coef < k; coef++) {
-      const column = new Float32Array(n);
-      for (let i = 0; i < n; i++) column[i] = cloud.shRest[(i * k + coef) * 3 + channel];
-      props.set(`f_rest_${channel * k + coef}`, column);
-    }
-  }
+  const rest = columns(Array.from({ length: 3 * k }, (_, j) => `f_rest_${j}`));
+  // source value j = coefficient * 3 + channel goes to PLY column channel * K + coefficient
+  const targets = Array.from({ length: 3 * k }, (_, j) => rest[(j % 3) * k + Math.floor(j / 3)]);
+  deinterleave(cloud.shRest, n, targets);
   return props;
+}
+
+/** Copy `n` records of `targets.length` interleaved values into one column each. Row by row:
+ * reading the source in order is several times faster than a strided pass per column. */
+function deinterleave(source, n, targets) {
+  const width = targets.length;
+  for (let i = 0, base = 0; i < n; i++, base += width) {
+    for (let j = 0; j < width; j++) targets[j][i] = source[base + j];
+  }
 }
 
 /**

@@ -6,6 +6,7 @@
 // A job is {"visits": [visit, ...]}; a visit is
 //   {"url": "...", "width": 400, "height": 300, "timeoutMs": 120000,
 //    "captures": [{"when": "firstPicture" | "complete" | "layers:K", "path": "shot.png"}, ...],
+//    "waitFor": "optional JS expression: wait until it is true before anything else",
 //    "evaluate": "optional JS expression whose value is reported once the last capture is taken"}
 // Each capture waits until the page's `window.spcViewer` reaches the condition, saves the canvas
 // as a PNG and keeps a copy of the page state at that moment. The report, one JSON object on
@@ -37,7 +38,10 @@ async function visit(browser, spec) {
   const deadline = Date.now() + (spec.timeoutMs ?? 120000);
   try {
     await page.goto(spec.url);
-    for (const capture of spec.captures ?? [{ when: 'complete' }]) {
+    if (spec.waitFor) {
+      await page.waitForFunction(spec.waitFor, null, { timeout: Math.max(1, deadline - Date.now()) });
+    }
+    for (const capture of spec.captures ?? []) {
       const test = condition(capture.when);
       let state;
       for (;;) {

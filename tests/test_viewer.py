@@ -183,6 +183,33 @@ def test_throttled_stream_shows_layer_0_before_the_file_arrives(scene, tmp_path)
     assert final["layersShown"] == len(info["layers"])
 
 
+def test_gzip_wrapped_files_stream_too(scene, tmp_path):
+    """With the wrapper's layer offsets ([R-83]) the page still fetches layer by layer; without
+    them it reads one stream; either way every layer is shown."""
+    import gzip
+
+    from spcodec.codecs import gzip_wrap
+
+    spc, info = scene
+    inner = spc.read_bytes()
+    marked, plain = tmp_path / "marked.spc", tmp_path / "plain.spc"
+    marked.write_bytes(gzip_wrap(inner, [layer["end_offset"] for layer in info["layers"]]))
+    plain.write_bytes(gzip.compress(inner))
+    with serving([marked, plain]) as base:
+        reports = drive([{"url": page_url(base, path), "captures": [{"when": "complete"}]}
+                         for path in (marked, plain)])
+    for report, mode, path in zip(reports, ("ranges", "stream"), (marked, plain)):
+        assert report["error"] is None, report["error"]
+        state = report["state"]
+        assert state["mode"] == mode and state["layersShown"] == len(info["layers"])
+        assert state["gaussians"] == info["gaussians"]
+        assert state["bytesLoaded"] == state["totalBytes"] == path.stat().st_size
+    # one request per layer ending at the wrapper's recorded offsets, then the gzip trailer
+    ends = [layer["end_offset"] for layer in spcodec.inspect(marked).to_json()["layers"]]
+    requested = [r["last"] + 1 for r in reports[0]["state"]["requests"]]
+    assert requested[-len(ends) - 1:] == [*ends, marked.stat().st_size]
+
+
 def test_corrupt_file_is_reported_with_its_error_code(scene, tmp_path):
     spc, info = scene
     data = bytearray(spc.read_bytes())

@@ -195,9 +195,8 @@ async function showSpc(app, camera, whenShown) {
     planLayers: (head) => {
       const info = spc.inspect(head);  // the `spcodec info --json` document
       state.layerCount = info.layers.length;
-      state.totalBytes = info.file_size;
-      return { layers: info.layers.map((l) => ({ index: l.index, endOffset: l.end_offset })),
-        fileSize: info.file_size };
+      // end_offset: in the stored file (for a gzip wrapper, null unless it records them)
+      return { layers: info.layers.map((l) => ({ index: l.index, endOffset: l.end_offset })) };
     },
     sink: async (chunk) => {
       state.bytesLoaded += chunk.length;

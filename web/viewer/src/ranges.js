@@ -5,8 +5,9 @@
 // where each layer ends. So the loader asks for the first bytes, completes the header block if
 // needed, reads the layer ends with the decoder's `inspect`, then requests one range per layer,
 // and stops after the last layer it was asked for. Every byte goes through the streaming decoder,
-// which checks it. A server that ignores ranges (200 instead of 206) is read as one stream; so is
-// a gzip-wrapped file, whose layer boundaries in the compressed bytes are optional.
+// which checks it. A gzip-wrapped file is fetched the same way when its wrapper records where each
+// layer ends ([R-83]; `inspect` reports those offsets), else read as one stream, as is a file from
+// a server that ignores ranges (200 instead of 206).
 //
 // Nothing here touches the DOM or the renderer: it runs under node with a fake fetch in the tests.
 
@@ -41,8 +42,8 @@ export function parseContentRange(header) {
  * @param {string} url
  * @param {object} options
  * @param {(chunk: Uint8Array) => Promise<void>} options.sink  receives the bytes, in order
- * @param {(header: Uint8Array) => {layers: {index: number, endOffset: number}[], fileSize: number}} options.planLayers
- *   reads the layer ends from a complete header block (the decoder's `inspect`)
+ * @param {(header: Uint8Array) => {layers: {index: number, endOffset: number|null}[]}} options.planLayers
+ *   reads the layer ends from the first bytes, a complete header block (the decoder's `inspect`)
  * @param {number} [options.maxLayer]  last layer to fetch (default: all)
  * @param {typeof fetch} [options.fetchImpl]
  * @param {(event: object) => void} [options.onRequest]  told of each request and its answer
@@ -56,14 +57,8 @@ export async function streamSpc(url, { sink, planLayers, maxLayer = Infinity, fe
   }
   const { size } = first.range;
   let head = await readAll(first);
-  if (head.length >= 2 && head[0] === GZIP_MAGIC[0] && head[1] === GZIP_MAGIC[1]) {
-    await sink(head);
-    const rest = head.length < size
-      ? await pump(await request(fetchImpl, url, head.length, size - 1, onRequest), sink, Infinity)
-      : 0;
-    return { mode: 'stream', fileSize: size, bytes: head.length + rest };
-  }
-  if (head.length >= FIXED_HEADER_BYTES) {
+  const gzip = head.length >= 2 && head[0] === GZIP_MAGIC[0] && head[1] === GZIP_MAGIC[1];
+  if (!gzip && head.length >= FIXED_HEADER_BYTES) {
     const headerSize = new DataView(head.buffer, head.byteOffset, head.byteLength).getUint32(16, true);
     if (headerSize > head.length && headerSize <= size) {  // an unusually long header block
       const more = await readAll(await request(fetchImpl, url, head.length, headerSize - 1, onRequest));
@@ -72,23 +67,31 @@ export async function streamSpc(url, { sink, planLayers, maxLayer = Infinity, fe
   }
   await sink(head);
   let offset = head.length;
-  let plan;
+  let layers = null;
   try {
-    plan = planLayers(head);
-  } catch (error) {
+    layers = planLayers(head).layers;
+  } catch {
     // Too short for a header block, or not an .spc: the decoder says why as the rest arrives.
+  }
+  if (!layers || layers.some((layer) => layer.endOffset == null)) {
+    // No layer ends (a gzip wrapper without recorded layer offsets, or bytes the decoder will
+    // reject): read the rest as one stream.
     if (offset < size) {
       offset += await pump(await request(fetchImpl, url, offset, size - 1, onRequest), sink, Infinity);
     }
     return { mode: 'stream', fileSize: size, bytes: offset };
   }
-  for (const layer of plan.layers) {
+  for (const layer of layers) {
     if (layer.index > maxLayer) break;
     if (layer.endOffset <= offset) continue;  // already received with the first request
     const response = await request(fetchImpl, url, offset, layer.endOffset - 1, onRequest);
     offset += await pump(response, sink, layer.endOffset - offset);
   }
-  return { mode: 'ranges', fileSize: plan.fileSize ?? size, bytes: offset };
+  if (maxLayer >= layers.length - 1 && offset < size) {
+    // bytes after the last layer: a gzip wrapper's end and trailer, whose CRC the decoder checks
+    offset += await pump(await request(fetchImpl, url, offset, size - 1, onRequest), sink, Infinity);
+  }
+  return { mode: 'ranges', fileSize: size, bytes: offset };
 }
 
 async function request(fetchImpl, url, first, last, onRequest) {

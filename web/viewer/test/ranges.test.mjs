@@ -49,7 +49,7 @@ function collector() {
 const plan = (layerEnds) => (head) => {
   assert.ok(head.length >= new DataView(head.buffer, head.byteOffset).getUint32(16, true),
     'the planner gets the whole header block');
-  return { layers: layerEnds.map((endOffset, index) => ({ index, endOffset })), fileSize: layerEnds.at(-1) };
+  return { layers: layerEnds.map((endOffset, index) => ({ index, endOffset })) };
 };
 
 test('one range per layer after the first request, every byte once', async () => {
@@ -106,16 +106,37 @@ test('a server without ranges is read as one stream', async () => {
   assert.ok(Buffer.from(file).equals(out.bytes()));
 });
 
-test('a gzip-wrapped file is read as one stream (in two requests)', async () => {
+test('a gzip-wrapped file without layer offsets is read as one stream (in two requests)', async () => {
   const file = fakeFile(300, [200_000]);
   file[0] = 0x1f;
   file[1] = 0x8b;
-  const { fetchImpl } = fakeServer(file);
+  const { fetchImpl, log } = fakeServer(file);
   const out = collector();
-  const planner = () => assert.fail('no layer plan for a gzip-wrapped file');
+  const planner = () => ({ layers: [{ index: 0, endOffset: null }] });
   const result = await streamSpc('/x.spc', { sink: out.sink, planLayers: planner, fetchImpl });
   assert.equal(result.mode, 'stream');
+  assert.deepEqual(log, [[0, FIRST_REQUEST_BYTES - 1], [FIRST_REQUEST_BYTES, 199_999]]);
   assert.ok(Buffer.from(file).equals(out.bytes()));
+});
+
+test('a gzip-wrapped file with layer offsets is fetched layer by layer', async () => {
+  const ends = [50_000, 120_000];
+  const file = fakeFile(300, ends);
+  file[0] = 0x1f;
+  file[1] = 0x8b;
+  const { fetchImpl, log } = fakeServer(file);
+  const out = collector();
+  const planner = () => ({ layers: ends.map((endOffset, index) => ({ index, endOffset })) });
+  const result = await streamSpc('/x.spc', { sink: out.sink, planLayers: planner, fetchImpl, maxLayer: 0 });
+  assert.equal(result.mode, 'ranges');
+  assert.deepEqual(log.at(-1), [FIRST_REQUEST_BYTES, 49_999]);
+  assert.ok(Buffer.from(file.subarray(0, 50_000)).equals(out.bytes()));
+  // all layers: the bytes after the last layer end (the gzip trailer) are fetched too
+  const all = collector();
+  const trailer = () => ({ layers: [{ index: 0, endOffset: 50_000 }, { index: 1, endOffset: 119_990 }] });
+  await streamSpc('/x.spc', { sink: all.sink, planLayers: trailer, fetchImpl });
+  assert.deepEqual(log.at(-1), [119_990, 119_999]);
+  assert.ok(Buffer.from(file).equals(all.bytes()));
 });
 
 test('bytes that are no header go to the sink whole, for the decoder to reject', async () => {

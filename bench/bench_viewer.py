@@ -11,7 +11,8 @@ PLY):
    and when every layer is, with the bytes received by then. Times run from the viewer's first
    request for the scene (the engine is already up). ``--repeat`` visits, median reported. For
    reference, the page also opens the decoded PLY over the same link (PlayCanvas's PLY loader
-   shows nothing before the whole file is in).
+   shows nothing before the whole file is in), at the camera the .spc visit chose; the PSNR of
+   the first and of the full picture against the PLY's is reported (PNGs left in ``--work``).
 2. **Decode throughput** in the page: ``decode(bytes)`` of the whole file, after one warm-up,
    ``--decode-repeat`` times; Gaussians per second from the median.
 3. **.spc vs PLY** (no throttle, loopback): request + decode + PlayCanvas resource for the .spc,
@@ -37,6 +38,9 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
+
+from spcodec.encoder.images import read_image  # noqa: E402
+from spcodec.encoder.metrics import psnr  # noqa: E402
 
 from scenes import data_dir  # noqa: E402  bench/ is on sys.path
 from viewer_harness import drive, missing_tools, page_url, serving  # noqa: E402
@@ -71,12 +75,19 @@ def layer_facts(spc: Path) -> dict:
             "first_picture_share": first["end_offset"] / info["stored_size"]}
 
 
-def streaming(spc: Path, ply: Path, kbps: float, repeat: int) -> dict:
+def streaming(spc: Path, ply: Path, kbps: float, repeat: int, shots: Path) -> dict:
+    """Viewer visits over the paced link; the first one saves its first and its full picture,
+    and the PLY visit (same camera) its picture, as PNGs in ``shots``."""
+    first, full, reference_png = (shots / f"{spc.stem}.{what}.png" for what in ("first", "full", "ply"))
+    captures = [{"when": "firstPicture", "path": str(first)}, {"when": "complete", "path": str(full)}]
     with serving([spc, ply], throttle_kbps=kbps) as base:
-        visits = drive([{"url": page_url(base, spc), "captures": [{"when": "complete"}],
-                         "timeoutMs": 600_000} for _ in range(repeat)], timeout=3600)
-        reference = drive([{"url": page_url(base, ply), "captures": [{"when": "complete"}],
-                            "timeoutMs": 600_000}], timeout=3600)[0]
+        visits = drive([{"url": page_url(base, spc, 480, 360), "timeoutMs": 600_000,
+                         "captures": captures if i == 0 else [{"when": "complete"}]}
+                        for i in range(repeat)], timeout=3600)
+        camera = visits[0]["state"]["camera"]
+        reference = drive([{"url": page_url(base, ply, 480, 360, camera=camera), "timeoutMs": 600_000,
+                            "captures": [{"when": "complete", "path": str(reference_png)}]}],
+                          timeout=3600)[0]
     for report in [*visits, reference]:
         if report["error"]:
             raise RuntimeError(report["error"])
@@ -91,6 +102,8 @@ def streaming(spc: Path, ply: Path, kbps: float, repeat: int) -> dict:
         "runs": [(s["tFirstPicture"] / 1000, s["tComplete"] / 1000) for s in states],
         "ply_picture_s": reference["state"]["tComplete"] / 1000,
         "ply_bytes": reference["state"]["bytesLoaded"],
+        "full_vs_ply_psnr_db": psnr(read_image(reference_png), read_image(full)),
+        "first_vs_ply_psnr_db": psnr(read_image(reference_png), read_image(first)),
     }
 
 
@@ -142,7 +155,7 @@ def main() -> int:
     results = {"kbps": args.kbps, "date": time.strftime("%Y-%m-%d"), "scenes": {}}
     for name in args.scenes:
         spc, ply = prepare(name, args.work)
-        row = {**layer_facts(spc), **streaming(spc, ply, args.kbps, args.repeat),
+        row = {**layer_facts(spc), **streaming(spc, ply, args.kbps, args.repeat, args.work),
                **in_page(spc, ply, args.repeat, args.decode_repeat)}
         results["scenes"][name] = row
         print(f"{name}: {row['gaussians']:,} Gaussians, {row['file_bytes']:,} bytes; first picture "
@@ -150,7 +163,9 @@ def main() -> int:
               f"({100 * row['first_picture_share']:.1f} %): decoded at {row['first_layer_decoded_s']:.2f} s, "
               f"on screen at {row['first_picture_s']:.2f} s; "
               f"full scene {row['full_scene_s']:.2f} s; PLY {row['ply_bytes']:,} bytes shown at "
-              f"{row['ply_picture_s']:.2f} s", flush=True)
+              f"{row['ply_picture_s']:.2f} s; PSNR against the PLY's render: full "
+              f"{row['full_vs_ply_psnr_db']:.1f} dB, first picture {row['first_vs_ply_psnr_db']:.1f} dB",
+              flush=True)
         print(f"  decode {row['decode_ms']:.0f} ms = {row['gaussians_per_s'] / 1e6:.2f} M Gaussians/s; "
               f"to a PlayCanvas resource: .spc {row['spc_to_resource_ms']:.0f} ms, PLY "
               f"{row['ply_to_resource_ms']:.0f} ms (PLY / spc {row['ply_over_spc']:.2f}x); .spc phases "

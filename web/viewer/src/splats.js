@@ -2,8 +2,8 @@
 //
 // PlayCanvas describes splats the way a 3DGS PLY does: one float array per PLY property (x, y, z,
 // f_dc_*, opacity, scale_*, rot_*, f_rest_*). Handing it the decoded layer under those names makes
-// the viewer render a layer exactly as PlayCanvas renders the PLY `spcodec decode` writes, which
-// the browser tests check pixel by pixel.
+// the viewer render a layer as PlayCanvas renders the PLY `spcodec decode` writes, which the
+// browser tests check pixel by pixel.
 
 /**
  * The PLY-named property arrays of a decoded cloud (the decoder API's layout: positions xyz,
@@ -44,16 +44,16 @@ function deinterleave(source, n, targets) {
 }
 
 /**
- * A PlayCanvas GSplatData holding `cloud`, prepared as PlayCanvas's PLY loader prepares a PLY
- * (Morton-reordered for locality).
+ * A PlayCanvas GSplatData holding `cloud`. PlayCanvas's PLY loader sorts a PLY's splats along a
+ * Morton curve for memory locality; our layers need no such pass: the encoder stores each patch
+ * layer in Morton order (its positions are delta-coded along that curve) and the sketch cluster
+ * by cluster. Drawing order is the renderer's depth sort either way.
  * @param {typeof import('playcanvas')} pc
  */
 export function toGSplatData(pc, cloud) {
   const properties = [...plyProperties(cloud)].map(([name, storage]) =>
     ({ type: 'float', name, storage, byteSize: 4 }));
-  const data = new pc.GSplatData([{ name: 'vertex', count: cloud.count, properties }]);
-  data.reorderData();
-  return data;
+  return new pc.GSplatData([{ name: 'vertex', count: cloud.count, properties }]);
 }
 
 /**

@@ -180,6 +180,9 @@ async function showSpc(app, camera, whenShown) {
       if (cloud.count > 0 && state.tFirstPicture == null) {
         state.tFirstPicture = event.tShown;
         state.bytesAtFirstPicture = event.bytesLoaded;
+        // Still the frame that showed it (promises resolve after the frame, before the next):
+        // kept for tests, which may look later, when more layers are on screen.
+        if (params.has('capture')) window.spcViewerFirstPicture = canvas.toDataURL('image/png');
       }
       showProgress();
     }));

@@ -53,8 +53,10 @@ async function visit(browser, spec) {
       if (state.status === 'error') throw new Error(`page error: ${JSON.stringify(state.error)}`);
       if (capture.path) {
         // the canvas's own pixels (the page keeps its drawing buffer): exact, and much faster
-        // than a screenshot through the compositor while the page renders continuously
-        const url = await page.evaluate(() => document.getElementById('scene').toDataURL('image/png'));
+        // than a screenshot through the compositor while the page renders continuously; for the
+        // first picture, the copy the page took in the frame that showed it (capture=1)
+        const url = await page.evaluate((when) => (when === 'firstPicture' && window.spcViewerFirstPicture) ||
+          document.getElementById('scene').toDataURL('image/png'), capture.when);
         fs.writeFileSync(capture.path, Buffer.from(url.slice(url.indexOf(',') + 1), 'base64'));
       }
       report.captures.push({ when: capture.when, path: capture.path ?? null, state });

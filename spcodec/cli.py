@@ -147,6 +147,38 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return run_demo(Path(args.output_dir), seed=args.seed)
 
 
+# ----------------------------------------------------------------------------- conformance
+def _add_conformance(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--decoder", metavar="'CMD {input} {output}'",
+                   help="judge this command line instead of the in-process decoder: it must write "
+                        "an INRIA PLY to {output} and exit 0, or exit non-zero, write nothing and "
+                        "print [error-code] on stderr (conformance/README.md)")
+    p.add_argument("--max-layer-arg", metavar="'--max-layer {k}'",
+                   help="what to append to --decoder for a decode of layers 0..k (without it, "
+                        "those decodes are not run)")
+    p.add_argument("--json", action="store_true", help="print the results as one JSON document")
+    p.add_argument("--only", nargs="+", metavar="PATTERN",
+                   help="run only the vectors whose id matches a shell-style pattern")
+    p.add_argument("--without-zstd", action="store_true",
+                   help="the decoder has no zstd support: decodes that need it expect "
+                        "codec-unavailable")
+    p.add_argument("--timeout", type=float, default=None, metavar="S",
+                   help="seconds an external decode may take (default: 60)")
+    p.add_argument("--suite", metavar="DIR", help="the suite to run (default: the one installed "
+                   "with spcodec)")
+    p.add_argument("--generate", metavar="DIR",
+                   help="instead of running, regenerate every vector and the manifest into DIR "
+                        "(e.g. conformance/ in the repository)")
+
+
+@command("conformance", "check a decoder against the conformance vectors (or regenerate them)",
+         _add_conformance)
+def cmd_conformance(args: argparse.Namespace) -> int:
+    from .conformance.command import run
+
+    return run(args)
+
+
 # ---------------------------------------------------------------------------------- encode
 def _add_encode(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", help="a trained 3DGS scene (.ply, INRIA layout or compressed.ply)")

@@ -1,4 +1,4 @@
-"""Decoding Draco point-cloud blobs with the checks the spec requires ([R-47], [R-54]).
+"""Decoding Draco point-cloud blobs with the checks the spec requires ([R-47], [R-49], [R-58]).
 
 DracoPy is a core dependency, but it is imported on first use so that reading PLY files or
 inspecting headers never loads the compiled library.
@@ -24,6 +24,10 @@ DRACO_VERSIONS = {(2, 3)}
 DRACO_METHODS = {0, 1}
 """Sequential and kd-tree encoding."""
 DRACO_METADATA_FLAG = 0x8000
+DRACO_POSITION = 0
+"""Draco's attribute type POSITION."""
+DRACO_FLOAT32 = 9
+"""Draco's data type DT_FLOAT32."""
 _DRACO_HEADER = 15
 """magic (5), version major and minor, encoder type, method, flags (u16), point count (i32)."""
 
@@ -48,6 +52,23 @@ def check_draco_header(blob: bytes | memoryview, count: int, what: str) -> None:
                           "draco-failed")
 
 
+def check_position_attribute(attributes: list[dict], what: str) -> None:
+    """[R-49]: a decoded blob holds one attribute, POSITION with 3 float32 components.
+
+    Draco decodes a blob whose attribute says GENERIC, or int8, without complaint (the kd-tree
+    coder even returns points for an int8 position), so the attribute is checked, not assumed.
+    """
+    if len(attributes) != 1:
+        raise FormatError(f"{what}: Draco blob carries {len(attributes)} attributes, expected "
+                          f"only the positions", "draco-failed")
+    att = attributes[0]
+    found = (att.get("attribute_type"), att.get("num_components"), att.get("data_type"))
+    if found != (DRACO_POSITION, 3, DRACO_FLOAT32):
+        raise FormatError(f"{what}: Draco attribute is (type {found[0]}, {found[1]} components, "
+                          f"data type {found[2]}), expected POSITION with 3 float32 components",
+                          "draco-failed")
+
+
 def decode_points(blob: bytes | memoryview, count: int, what: str) -> np.ndarray:
     """Decode a Draco point cloud that must hold exactly ``count`` finite points, in decode order.
 
@@ -58,15 +79,17 @@ def decode_points(blob: bytes | memoryview, count: int, what: str) -> np.ndarray
     check_draco_header(blob, count, what)
     try:
         decoded = DracoPy.decode(bytes(blob))
-        points = np.asarray(decoded.points, dtype=np.float32).reshape(-1, 3)
     except Exception as exc:  # DracoPy raises assorted types on corrupt input
         raise FormatError(f"{what}: Draco blob cannot be decoded ({exc})", "draco-failed") from None
     faces = getattr(decoded, "faces", None)
     if faces is not None and len(faces):
         raise FormatError(f"{what}: Draco blob is a mesh, not a point cloud", "draco-failed")
-    if len(getattr(decoded, "attributes", None) or [None]) != 1:
-        raise FormatError(f"{what}: Draco blob carries attributes besides positions",
-                          "draco-failed")
+    check_position_attribute(decoded.attributes, what)
+    try:
+        points = np.asarray(decoded.points, dtype=np.float32).reshape(-1, 3)
+    except Exception as exc:  # noqa: BLE001 - as above: never another exception for a bad blob
+        raise FormatError(f"{what}: Draco positions cannot be read ({exc})",
+                          "draco-failed") from None
     if points.shape[0] != count:
         raise FormatError(f"{what}: Draco blob holds {points.shape[0]} points, expected {count}",
                           "draco-failed")

@@ -380,7 +380,10 @@ def parse_positions(raw: bytes, count: int) -> PatchPositions:
     except ValueError:
         raise FormatError(f"unknown patch position mode {payload.mode}", "bad-value") from None
     if mode == PositionMode.DRACO:
-        if count == 0 and not payload.data:
+        if count == 0:  # no Draco point cloud has zero points ([R-58])
+            if payload.data:
+                raise FormatError(f"PATCH_POSITIONS holds {len(payload.data)} Draco bytes for a "
+                                  f"layer of 0 Gaussians", "bad-section")
             return PatchPositions(mode, np.zeros((0, 3), np.float32), blob=b"")
         points = decode_points(payload.data, count, "patch positions")
         return PatchPositions(mode, points, blob=bytes(payload.data))

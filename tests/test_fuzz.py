@@ -19,11 +19,8 @@ lengths have a memory bound.
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 import time
 import tracemalloc
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -32,22 +29,14 @@ from hypothesis import strategies as st
 
 import spcodec
 
+from conftest import load_fuzzer
+
 TIME_BOUND_S = 3.0
 """Seconds one mutant may take through every entry point (inputs are a few KB; a correct
 decoder answers in milliseconds, so only a hang or a runaway loop gets near this)."""
 
 
-def _load_fuzzer():
-    """The mutators and oracle live with the by-hand fuzz script, so both run the same code."""
-    path = Path(__file__).resolve().parents[1] / "bench" / "fuzz_decoder.py"
-    spec = importlib.util.spec_from_file_location("fuzz_decoder", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses resolve annotations through sys.modules
-    spec.loader.exec_module(module)
-    return module
-
-
-fz = _load_fuzzer()
+fz = load_fuzzer()
 SEEDS = fz.build_seeds()
 EXAMPLES = settings().max_examples * 3
 """Three times the profile's example count: mutants are cheap (a few ms each)."""

@@ -43,6 +43,31 @@ def test_written_layout_is_the_inria_one(tmp_path):
     np.testing.assert_array_equal(ply["vertex"][f"f_rest_{k}"], cloud.sh_rest[:, 0, 1])
 
 
+@pytest.mark.parametrize("sh_degree", [0, 1, 2, 3])
+def test_written_ply_is_the_layout_of_spec_annex_e(tmp_path, sh_degree):
+    """[R-98]: binary little-endian float32; x y z, nx ny nz (all 0), f_dc, f_rest channel-major
+    (none at SH degree 0), opacity, scale, rot_0..3 = w x y z."""
+    cloud = random_cloud(7, sh_degree, seed=sh_degree)
+    spcodec.write_ply(tmp_path / "a.ply", cloud)
+    ply = PlyData.read(tmp_path / "a.ply")
+    k = SH_REST_COUNTS[sh_degree]
+    want = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+    want += [f"f_rest_{i}" for i in range(3 * k)]
+    want += ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    assert not ply.text and ply.byte_order == "<"
+    assert [p.name for p in ply["vertex"].properties] == want
+    assert {p.val_dtype for p in ply["vertex"].properties} == {"f4"}
+    v = ply["vertex"]
+    for i, axis in enumerate("xyz"):
+        assert (v[axis] == cloud.means[:, i]).all() and (v["n" + axis] == 0).all()
+    for i, name in enumerate(["rot_0", "rot_1", "rot_2", "rot_3"]):   # w first
+        assert (v[name] == cloud.quats[:, i]).all()
+    for c in range(3):
+        for i in range(k):
+            assert (v[f"f_rest_{c * k + i}"] == cloud.sh_rest[:, i, c]).all()
+    assert (v["opacity"] == cloud.opacities).all()
+
+
 def _write_custom(path, columns: dict[str, np.ndarray], dtype="f4"):
     n = len(next(iter(columns.values())))
     rec = np.zeros(n, dtype=[(k, dtype) for k in columns])

@@ -235,6 +235,25 @@ def test_draco_blobs_with_extra_attributes_are_refused():
     rng = np.random.default_rng(0)
     pts = rng.normal(size=(6, 3)).astype(np.float32)
     coloured = DracoPy.encode(pts, colors=(rng.random((6, 3)) * 255).astype(np.uint8))
-    with pytest.raises(FormatError, match="attributes besides positions") as err:
+    with pytest.raises(FormatError, match="carries 2 attributes") as err:
         decode_points(coloured, 6, "test blob")
+    assert err.value.code == "draco-failed"
+
+
+@pytest.mark.parametrize("byte, value, kdtree", [(17, 4, False), (17, 1, True), (18, 1, True)])
+def test_draco_attribute_must_be_float32_positions(byte, value, kdtree):
+    """[R-49] (correction): the one attribute must be POSITION with 3 float32 components. Draco
+    decodes a blob whose attribute says GENERIC or NORMAL without complaint, and a kd-tree blob
+    whose positions say int8 to points, so each is checked, not assumed."""
+    import DracoPy
+
+    from spcodec.draco_io import decode_points
+    pts = np.random.default_rng(0).normal(size=(20, 3)).astype(np.float32)
+    blob = bytearray(DracoPy.encode(pts, quantization_bits=14, preserve_order=not kdtree))
+    assert blob[8] == int(kdtree) and tuple(blob[17:20]) == (0, 9, 3)  # POSITION, float32, 3
+    decode_points(bytes(blob), 20, "good blob")
+    blob[byte] = value
+    assert DracoPy.decode(bytes(blob)).attributes[0]["attribute_type"] == blob[17]  # it decodes
+    with pytest.raises(FormatError, match="expected POSITION with 3 float32 components") as err:
+        decode_points(bytes(blob), 20, "forged blob")
     assert err.value.code == "draco-failed"

@@ -10,6 +10,19 @@ from conftest import REPO
 
 SPEC = (REPO / "spec" / "bitstream-v1.md").read_text(encoding="utf-8")
 DEFINED = set(re.findall(r"\*\*\[R-(\d+)\]\*\*", SPEC))
+_INDEX_ROW = re.compile(r"^\| \[R-(\d+)\] \| [^|]+ \| (decoder|file|writer|reference) \| "
+                        r"(yes|no: [^|]+) \|$", re.MULTILINE)
+
+
+def requirement_index() -> dict[str, tuple[str, bool]]:
+    """Annex D: requirement id ("R-n") -> (what it binds, whether a decoder can check it)."""
+    annex = SPEC[SPEC.index("## Annex D."):SPEC.index("## Annex E.")]
+    return {f"R-{n}": (binds, checkable == "yes") for n, binds, checkable in _INDEX_ROW.findall(annex)}
+
+
+def checkable_requirements() -> set[str]:
+    """The requirements the conformance suite must exercise (Annex D, checkable by a decoder)."""
+    return {r for r, (_, checkable) in requirement_index().items() if checkable}
 
 
 def _cited_in(folders: list[str]) -> set[str]:
@@ -41,3 +54,22 @@ def test_error_codes_match_the_spec_table():
     table = set(re.findall(r"^\| `([a-z-]+)` \|", SPEC, flags=re.MULTILINE))
     format_codes = set(ERROR_CODES) - {"ply-invalid", "dataset-invalid"}
     assert table == format_codes
+
+
+def test_the_requirement_index_lists_every_requirement_once():
+    """Annex D: one row per defined requirement, none for an undefined one."""
+    annex = SPEC[SPEC.index("## Annex D."):SPEC.index("## Annex E.")]
+    rows = re.findall(r"^\| \[R-(\d+)\] \|", annex, flags=re.MULTILINE)
+    assert len(rows) == len(set(rows)), "a requirement has two rows"
+    assert set(rows) == DEFINED
+    assert len(requirement_index()) == len(rows), "a row does not follow the table's format"
+    binds = {r: b for r, (b, _) in requirement_index().items()}
+    assert binds["R-1"] == "decoder" and binds["R-94"] == "writer" and binds["R-95"] == "reference"
+    assert not requirement_index()["R-25"][1] and requirement_index()["R-7"][1]
+
+
+def test_implementation_defined_outcomes_are_listed():
+    """Section 1.1 names each case where two conforming decoders may differ."""
+    section = SPEC[SPEC.index("### 1.1 Conformance"):SPEC.index("**[R-2]**")]
+    assert re.findall(r"^\| (ID-\d+):", section, flags=re.MULTILINE) == \
+        [f"ID-{i}" for i in range(1, 7)]

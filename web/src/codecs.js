@@ -44,9 +44,13 @@ function corrupt(message) {
 
 /**
  * One zlib stream (RFC 1950, no preset dictionary) inflated into exactly `rawLength` bytes.
- * A stream that would produce more is `length-mismatch` as soon as it does; a complete stream
- * that produces fewer is `length-mismatch`; corrupt data, a wrong Adler-32, a stream cut short
- * or bytes after it are `decompression-failed`.
+ *
+ * As [R-24] has it, at most `rawLength + 1` bytes are produced: a stream that needs to write a
+ * byte past that is `length-mismatch` at that point (whatever follows). Otherwise the stream is
+ * decoded to its end, and then, in this order: corrupt data, a stream cut short or a wrong
+ * Adler-32 are `decompression-failed`, a length other than `rawLength` is `length-mismatch`, and
+ * bytes after the stream are `decompression-failed`. (This is the order in which zlib, bounded
+ * the same way, reports them to the reference decoder.)
  * @param {Uint8Array} stored
  * @param {number} rawLength
  * @returns {Uint8Array}
@@ -59,15 +63,12 @@ export function inflateZlib(stored, rawLength) {
   if ((cmf >>> 4) > 7) corrupt('zlib stream declares an invalid window size');
   if (((cmf << 8) | flg) % 31 !== 0) corrupt('zlib header check bits are wrong');
   if (flg & 0x20) corrupt('zlib stream needs a preset dictionary');
-  const inflater = new RawInflater(rawLength);
+  const inflater = new RawInflater(rawLength + 1);
   inflater.setInput(padded(stored), stored.length, 2);
   try {
     inflater.run();
   } catch (err) {
-    if (err instanceof OutputLimitError) {
-      throw new SpcError('length-mismatch', `section inflates past its declared raw length of ` +
-        `${rawLength} bytes`);
-    }
+    if (err instanceof OutputLimitError) tooLong(rawLength);
     if (err instanceof DeflateError) corrupt(`zlib stream is corrupt (${err.message})`);
     throw err;
   }
@@ -76,9 +77,18 @@ export function inflateZlib(stored, rawLength) {
   if (at + 4 > stored.length) corrupt('the zlib stream ends early');
   const want = ((stored[at] << 24) | (stored[at + 1] << 16) | (stored[at + 2] << 8) | stored[at + 3]) >>> 0;
   if (adler32(out) !== want) corrupt('zlib stream fails its Adler-32 check');
-  if (out.length !== rawLength) {
+  if (out.length > rawLength) tooLong(rawLength);
+  if (out.length < rawLength) {
     throw new SpcError('length-mismatch', `section inflates to ${out.length} bytes, declared ${rawLength}`);
   }
   if (at + 4 !== stored.length) corrupt('bytes follow the end of the zlib stream');
   return out;
+}
+
+/**
+ * @param {number} rawLength
+ * @returns {never}
+ */
+function tooLong(rawLength) {
+  throw new SpcError('length-mismatch', `section inflates past its declared raw length of ${rawLength} bytes`);
 }

@@ -13,7 +13,9 @@ import { CODEC_NAMES, decompress } from './codecs.js';
 import { loadDraco } from './draco.js';
 import { SpcError, allocate, fail } from './errors.js';
 import { GzipReader, gzipLayerEnds, isGzip } from './gzip.js';
-import { SectionType, checkFixedHeader, checkMagic, headerBytesNeeded, layerSection, readHeader } from './header.js';
+import {
+  SectionType, checkFixedHeader, headerBytesNeeded, isMagicPrefix, layerSection, readHeader,
+} from './header.js';
 import { OutputLimitError } from './inflate.js';
 import { checkLimit, resolveLimits } from './limits.js';
 import { checkIndices, fillPatch, parseCodebooks, parsePositions } from './patch.js';
@@ -265,7 +267,7 @@ function asBytes(bytes) {
 function headerIfReady(buffer, limits) {
   const need = headerBytesNeeded(buffer);
   if (need < 0) {
-    checkMagic(buffer.subarray(0, 8).length < 8 ? buffer : buffer.subarray(0, 8));
+    if (!isMagicPrefix(buffer)) fail('bad-magic', 'not an spcodec file (bad magic)');
     return null;
   }
   if (buffer.length < need) {

@@ -113,7 +113,7 @@ function u64(view, at) {
  * @param {Uint8Array} data
  * @returns {boolean} whether data (shorter than the magic) could still become the magic
  */
-function isMagicPrefix(data) {
+export function isMagicPrefix(data) {
   for (let i = 0; i < Math.min(data.length, MAGIC.length); i++) if (data[i] !== MAGIC[i]) return false;
   return true;
 }

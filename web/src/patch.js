@@ -240,19 +240,25 @@ export function fillPatch(plan, codebooks, out, sh) {
       stride = restWidth;
       offset = 3 * (band * band - 1);
     }
-    for (let g = 0; g < groups; g++, row++) {
-      const column = plan.indices.subarray(row * n, (row + 1) * n);
-      const at = offset + g * dim;
-      if (dim === 1) {
-        for (let i = 0; i < n; i++) target[i * stride + at] = mapped[column[i]];
-      } else {
-        for (let i = 0; i < n; i++) {
-          const src = column[i] * dim;
-          const dst = i * stride + at;
-          for (let k = 0; k < dim; k++) target[dst + k] = mapped[src + k];
+    // Gaussian by Gaussian, so the output is written in order; each group's index column is
+    // read sequentially alongside.
+    const base = row * n;
+    const indices = plan.indices;
+    if (dim === 1) {
+      for (let i = 0; i < n; i++) {
+        const dst = i * stride + offset;
+        for (let g = 0; g < groups; g++) target[dst + g] = mapped[indices[base + g * n + i]];
+      }
+    } else {
+      for (let i = 0; i < n; i++) {
+        let dst = i * stride + offset;
+        for (let g = 0; g < groups; g++) {
+          const src = indices[base + g * n + i] * dim;
+          for (let k = 0; k < dim; k++) target[dst++] = mapped[src + k];
         }
       }
     }
+    row += groups;
     if (attribute === ROTATION && dim !== 4) {
       const r = out.rotations;
       for (let i = 0; i < 4 * n; i += 4) writeRotation(r[i], r[i + 1], r[i + 2], r[i + 3], r, i);

@@ -196,29 +196,34 @@ export function prepareSketch(payloads, header, limits, draco, types) {
  * @property {Float32Array} shRest
  */
 
+/** Points of a cluster evaluated together (bounds the scratch memory: 286 monomials x this). */
+const CHUNK = 512;
+
 /**
  * Evaluate every cluster's models at its points into `out` ([R-41]..[R-44], [R-30]..[R-34]).
  *
  * Each output is summed in binary64, term by term in monomial order, which is exactly what the
  * reference decoder does for clusters of fewer than 32 points (its larger clusters use a matrix
  * product, whose rounding differs within the tolerance of section 15). The monomials are built
- * a degree at a time from those of the degree below, as the reference builds them.
+ * a degree at a time from those of the degree below, as the reference builds them. Points are
+ * taken in chunks and each sum runs over the chunk's points in the inner loop, which keeps the
+ * loops long and the per-term overhead low.
  * @param {SketchPlan} plan
  * @param {CloudArrays} out
  */
 export function fillSketch(plan, out) {
   const { layout, positions, coefficients, sh } = plan;
   const outputs = modelOutputs(sh);
-  const restWidth = outputs[4];
-  const phi = new Float64Array(monomialCount(MAX_DEGREE));
-  const value = new Float64Array(Math.max(4, restWidth));
-  /** @type {Float64Array[]} coefficient matrices of the current cluster, as binary64 */
-  const models = [0, 1, 2, 3, 4].map((a) => new Float64Array(monomialCount(MAX_DEGREE) * Math.max(outputs[a], 1)));
+  const maxMonomials = monomialCount(MAX_DEGREE);
+  const phi = new Float64Array(maxMonomials * CHUNK);
+  const xyz = new Float64Array(3 * CHUNK);
+  const sums = new Float64Array(CHUNK);
+  /** coefficient matrices of the current cluster, as binary64 */
+  const models = outputs.map((o) => new Float64Array(maxMonomials * Math.max(o, 1)));
   const words = u16Words(coefficients, 0, coefficients.length >>> 1);
   out.positions.set(positions);
-  let row = 0;
+  let first = 0;
   for (let c = 0; c < layout.count; c++) {
-    const n = layout.pointCount[c];
     let top = 0;
     for (let a = 0; a < 5; a++) {
       const d = layout.degrees[5 * c + a];
@@ -226,27 +231,52 @@ export function fillSketch(plan, out) {
       loadModel(words, layout.coefficientOffset[5 * c + a] / 2, monomialCount(d) * outputs[a], models[a], c);
       if (d > top) top = d;
     }
-    const cx = layout.center[3 * c];
-    const cy = layout.center[3 * c + 1];
-    const cz = layout.center[3 * c + 2];
-    const hx = layout.halfExtent[3 * c];
-    const hy = layout.halfExtent[3 * c + 1];
-    const hz = layout.halfExtent[3 * c + 2];
-    for (let i = 0; i < n; i++, row++) {
-      const x = (positions[3 * row] - cx) / hx;
-      const y = (positions[3 * row + 1] - cy) / hy;
-      const z = (positions[3 * row + 2] - cz) / hz;
-      if (!(Math.abs(x) <= MAX_NORMALIZED && Math.abs(y) <= MAX_NORMALIZED && Math.abs(z) <= MAX_NORMALIZED)) {
-        fail('bad-value', `cluster ${c}: a position lies outside twice its frame ([R-42])`);
-      }
-      monomials(x, y, z, top, phi);
+    const end = first + layout.pointCount[c];
+    for (let row = first; row < end; row += CHUNK) {
+      const n = Math.min(CHUNK, end - row);
+      normalize(positions, row, n, layout, c, xyz);
+      monomials(xyz, n, top, phi);
       for (let a = 0; a < 5; a++) {
         const d = layout.degrees[5 * c + a];
-        const width = outputs[a];
         if (d === SH_REST_ABSENT) continue; // its SH rest stays zero
-        evaluate(phi, monomialCount(d), models[a], width, value);
-        store(a, value, width, row, out, c);
+        const width = outputs[a];
+        const m = monomialCount(d);
+        const model = models[a];
+        for (let o = 0; o < width; o++) {
+          sums.fill(0, 0, n);
+          for (let k = 0; k < m; k++) {
+            const coefficient = model[k * width + o];
+            const column = k * n;
+            for (let i = 0; i < n; i++) sums[i] += phi[column + i] * coefficient;
+          }
+          store(a, o, width, sums, n, row, out, c);
+        }
       }
+    }
+    first = end;
+  }
+}
+
+/**
+ * Normalized positions of `n` points from `row` on of cluster `c` ([R-42]), into xyz as three
+ * columns; a coordinate beyond 2 is `bad-value`.
+ * @param {Float32Array} positions
+ * @param {number} row
+ * @param {number} n
+ * @param {SketchLayout} layout
+ * @param {number} c
+ * @param {Float64Array} xyz
+ */
+function normalize(positions, row, n, layout, c, xyz) {
+  for (let axis = 0; axis < 3; axis++) {
+    const center = layout.center[3 * c + axis];
+    const half = layout.halfExtent[3 * c + axis];
+    for (let i = 0; i < n; i++) {
+      const v = (positions[3 * (row + i) + axis] - center) / half;
+      if (!(Math.abs(v) <= MAX_NORMALIZED)) {
+        fail('bad-value', `cluster ${c}: a position lies outside twice its frame ([R-42])`);
+      }
+      xyz[axis * CHUNK + i] = v;
     }
   }
 }
@@ -268,77 +298,77 @@ function loadModel(words, start, size, into, cluster) {
 }
 
 /**
- * The monomials of degree <= d at (x, y, z) in graded lexicographic order ([R-41]): the degree-t
- * block is x times the whole degree t-1 block, then y times its last t entries (those without x),
- * then z times its last entry.
- * @param {number} x
- * @param {number} y
- * @param {number} z
+ * The monomials of degree <= d at n points, in graded lexicographic order ([R-41]), as columns
+ * of `phi` (monomial k of point i at k * n + i): the degree-t block is x times the whole degree
+ * t-1 block, then y times its last t entries (those without x), then z times its last entry.
+ * @param {Float64Array} xyz three columns of CHUNK normalized coordinates
+ * @param {number} n
  * @param {number} d
  * @param {Float64Array} phi
  */
-function monomials(x, y, z, d, phi) {
-  phi[0] = 1;
+function monomials(xyz, n, d, phi) {
+  phi.fill(1, 0, n);
   let prev = 0;
   let stop = 1;
   for (let t = 1; t <= d; t++) {
     const width = stop - prev;
-    for (let j = 0; j < width; j++) phi[stop + j] = phi[prev + j] * x;
-    for (let j = 0; j < t; j++) phi[stop + width + j] = phi[stop - t + j] * y;
-    phi[stop + width + t] = phi[stop - 1] * z;
+    for (let j = 0; j < width; j++) times(phi, (prev + j) * n, xyz, 0, (stop + j) * n, n);
+    for (let j = 0; j < t; j++) times(phi, (stop - t + j) * n, xyz, CHUNK, (stop + width + j) * n, n);
+    times(phi, (stop - 1) * n, xyz, 2 * CHUNK, (stop + width + t) * n, n);
     prev = stop;
     stop += width + t + 1;
   }
 }
 
 /**
- * value[o] = sum over m of phi[m] * c[m, o], summed in monomial order ([R-43]).
+ * phi[to + i] = phi[from + i] * xyz[axis + i] for i < n.
  * @param {Float64Array} phi
- * @param {number} m monomials
- * @param {Float64Array} c row-major (m, width)
- * @param {number} width
- * @param {Float64Array} value
+ * @param {number} from
+ * @param {Float64Array} xyz
+ * @param {number} axis
+ * @param {number} to
+ * @param {number} n
  */
-function evaluate(phi, m, c, width, value) {
-  for (let o = 0; o < width; o++) value[o] = 0;
-  for (let k = 0; k < m; k++) {
-    const p = phi[k];
-    const base = k * width;
-    for (let o = 0; o < width; o++) value[o] += p * c[base + o];
-  }
+function times(phi, from, xyz, axis, to, n) {
+  for (let i = 0; i < n; i++) phi[to + i] = phi[from + i] * xyz[axis + i];
 }
 
 /**
- * Map one evaluated model to parameters and store them ([R-30]..[R-34]).
+ * Map output `o` of one evaluated model, at n points, to parameters and store them
+ * ([R-30]..[R-34]). A rotation is stored when its last component (o = 3) is in.
  * @param {number} attribute 0 scale, 1 rotation, 2 opacity, 3 colour DC, 4 SH rest
- * @param {Float64Array} value
+ * @param {number} o
  * @param {number} width
- * @param {number} row
+ * @param {Float64Array} sums
+ * @param {number} n
+ * @param {number} row first output row
  * @param {CloudArrays} out
  * @param {number} cluster
  */
-function store(attribute, value, width, row, out, cluster) {
-  for (let o = 0; o < width; o++) {
-    const v = value[o];
+function store(attribute, o, width, sums, n, row, out, cluster) {
+  for (let i = 0; i < n; i++) {
+    const v = sums[i];
     if (!Number.isFinite(v)) fail('bad-value', `cluster ${cluster}: a model is not finite at its points`);
     if (attribute !== 1 && attribute !== 2 && Math.abs(v) > FLOAT32_MAX) {
       fail('bad-value', `cluster ${cluster}: a model overflows float32`);
     }
   }
   if (attribute === 0) {
-    out.scales[3 * row] = value[0];
-    out.scales[3 * row + 1] = value[1];
-    out.scales[3 * row + 2] = value[2];
+    for (let i = 0; i < n; i++) out.scales[3 * (row + i) + o] = sums[i];
   } else if (attribute === 1) {
-    writeRotation(value[0], value[1], value[2], value[3], out.rotations, 4 * row);
+    // the coded quaternion is gathered in binary64 until its last component, then normalized
+    const q = ROTATION_SCRATCH;
+    for (let i = 0; i < n; i++) q[4 * i + o] = sums[i];
+    if (o === 3) {
+      for (let i = 0; i < n; i++) writeRotation(q[4 * i], q[4 * i + 1], q[4 * i + 2], q[4 * i + 3], out.rotations, 4 * (row + i));
+    }
   } else if (attribute === 2) {
-    out.opacities[row] = decodeOpacity(value[0]);
+    for (let i = 0; i < n; i++) out.opacities[row + i] = decodeOpacity(sums[i]);
   } else if (attribute === 3) {
-    out.shDC[3 * row] = value[0];
-    out.shDC[3 * row + 1] = value[1];
-    out.shDC[3 * row + 2] = value[2];
+    for (let i = 0; i < n; i++) out.shDC[3 * (row + i) + o] = sums[i];
   } else {
-    const base = row * width;
-    for (let o = 0; o < width; o++) out.shRest[base + o] = value[o];
+    for (let i = 0; i < n; i++) out.shRest[width * (row + i) + o] = sums[i];
   }
 }
+
+const ROTATION_SCRATCH = new Float64Array(4 * CHUNK);

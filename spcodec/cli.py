@@ -121,6 +121,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
     problem = viewer_missing()
     if problem:
         print(f"spcodec: warning: {problem}; serving the file alone", file=sys.stderr)
+    if host not in ("127.0.0.1", "::1", "localhost"):
+        print(f"spcodec: warning: listening on {host}: other machines can fetch the scene and the "
+              "viewer", file=sys.stderr)
     speed = f", throttled to {args.throttle:g} kbit/s" if args.throttle else ""
     print(f"serving {args.input}{speed}: open http://{shown}:{port}/  (Ctrl-C stops)", flush=True)
     try:

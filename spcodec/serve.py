@@ -282,4 +282,6 @@ def viewer_missing(web_root: Path | None = None) -> str | None:
         return f"the viewer page is not in {root / 'viewer'} (serve runs from a source checkout)"
     if not (root / "viewer" / "node_modules" / "playcanvas").is_dir():
         return f"the viewer's npm packages are not installed: run 'npm ci' in {root / 'viewer'}"
+    if not (root / "node_modules" / "fflate").is_dir():
+        return f"the decoder's npm packages are not installed: run 'npm ci' in {root}"
     return None

@@ -174,3 +174,29 @@ def test_cli_serve_fails_with_one_line(capsys, tmp_path):
     code = main(["serve", str(tmp_path / "nope.spc"), "--port", "0"])
     _, err = capsys.readouterr()
     assert code == 2 and err.count("\n") == 1 and "no such file" in err
+
+
+def test_cli_serve_prints_a_url_that_serves_ranges_and_stops_on_ctrl_c(tmp_path):
+    import re
+    import signal
+    import subprocess
+    import sys
+
+    scene = tmp_path / "scene.spc"
+    scene.write_bytes(SCENE)
+    proc = subprocess.Popen([sys.executable, "-m", "spcodec.cli", "serve", str(scene), "--port", "0",
+                             "--throttle", "100000"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        line = proc.stdout.readline()
+        match = re.search(r"http://([\d.]+):(\d+)/", line)
+        assert match and "throttled to 100000 kbit/s" in line, line
+        address = (match.group(1), int(match.group(2)))
+        response, _ = request(address, "/")
+        assert response.status == 302 and "scene.spc" in response.getheader("Location")
+        response, body = request(address, "/scenes/scene.spc", {"Range": "bytes=16-31"})
+        assert response.status == 206 and body == SCENE[16:32]
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0 and "stopped" in out and "Traceback" not in err

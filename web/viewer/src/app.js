@@ -7,6 +7,7 @@
 //   maxLayer=K         fetch and show layers 0..K only (.spc)
 //   width=W&height=H   fixed canvas resolution (default: fill the window)
 //   cam=x,y,z&target=x,y,z&up=x,y,z&fov=DEG   camera (default: framed on the first layer, -y up)
+//   capture=1          no overlay, and keep the frame of the first picture (tests, benchmark)
 //
 // Progress is shown on the page and kept in `window.spcViewer` (see `state` below), which the
 // browser tests and the benchmark read.
@@ -20,7 +21,8 @@ import { frameBounds, robustBounds, toGSplatData } from './splats.js';
 const params = new URLSearchParams(location.search);
 const src = params.get('src');
 
-/** Everything the page knows about its progress; times are ms from `tStart` (first request). */
+/** Everything the page knows about its progress. Times are ms from `tStart`, when loading the
+ * scene begins (the engine is up; the decoder's code is fetched after it). */
 const state = {
   status: 'starting',  // starting | loading | complete | error
   src,
@@ -156,6 +158,9 @@ async function showSpc(app, camera, whenShown) {
   const spc = await import('../../src/index.js');
   spc.configureDraco(browserDraco());
   const maxLayer = params.has('maxLayer') ? Number(params.get('maxLayer')) : Infinity;
+  if (!(Number.isInteger(maxLayer) && maxLayer >= 0) && maxLayer !== Infinity) {
+    throw new Error(`URL parameter maxLayer must be a layer number (0, 1, ...), got "${params.get('maxLayer')}"`);
+  }
   const decoder = new spc.StreamDecoder();
   let placed = false;
   const shown = [];

@@ -40,7 +40,9 @@ const state = {
   tStart: null,
   tFirstPicture: null,  // the first non-empty layer on screen
   tComplete: null,
-  bytesAtFirstPicture: null,
+  bytesAtFirstPicture: null,  // bytes that layer needed (received when it was decoded)
+  layersInFirstPicture: null,
+  bytesWhenFirstPictureShown: null,
   renderer: null,
   camera: null,  // {position, target, up, fov} once placed: pass it back in the URL to reproduce a view
 };
@@ -185,6 +187,9 @@ async function showSpc(app, camera, whenShown) {
       if (cloud.count > 0 && state.tFirstPicture == null) {
         state.tFirstPicture = event.tShown;
         state.bytesAtFirstPicture = event.bytesLoaded;
+        // a slow renderer may show later layers in the same frame when bytes come in fast
+        state.layersInFirstPicture = state.layersDecoded;
+        state.bytesWhenFirstPictureShown = state.bytesLoaded;
         // Still the frame that showed it (promises resolve after the frame, before the next):
         // kept for tests, which may look later, when more layers are on screen.
         if (params.has('capture')) window.spcViewerFirstPicture = canvas.toDataURL('image/png');

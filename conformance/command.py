@@ -28,7 +28,7 @@ def run(args: argparse.Namespace) -> int:
     if args.timeout is not None and not args.timeout > 0:
         raise UsageError(f"--timeout must be positive, got {args.timeout}")
     try:
-        manifest = load_manifest(Path(args.suite) if args.suite else SUITE_DIR)
+        manifest = load_manifest(Path(args.suite).resolve() if args.suite else SUITE_DIR)
     except ManifestError as exc:
         raise UsageError(str(exc)) from None
     if args.decoder:

@@ -9,11 +9,10 @@ field and, unless told not to, repairs the header CRC so that the edit is the on
 
 from __future__ import annotations
 
-import dataclasses
 import struct
 from dataclasses import dataclass, field
 
-from spcodec.codecs import compress, crc32
+from spcodec.codecs import crc32
 from spcodec.container import FIXED_HEADER_SIZE, Codec, SectionType, header_size
 from spcodec.writer import EncodedScene, LayerSpec, SectionSpec, assemble, scene_sections
 
@@ -34,16 +33,6 @@ class Draft:
         sections, layers = scene_sections(scene, codec)
         return cls(sections, layers, scene.sh_degree)
 
-    def find(self, type_: int, layer: int | None = None) -> SectionSpec:
-        """The first section of ``type_`` (in ``layer`` when given)."""
-        return self.sections[self.index(type_, layer)]
-
-    def index(self, type_: int, layer: int | None = None) -> int:
-        for i, sec in enumerate(self.sections):
-            if sec.type == type_ and (layer is None or sec.layer == layer):
-                return i
-        raise KeyError(f"no section {type_:#06x} in layer {layer}")
-
     def insert_after_layer(self, layer: int, section: SectionSpec) -> None:
         """Add ``section`` at the end of ``layer``'s sections."""
         at = max(i for i, s in enumerate(self.sections) if s.layer == layer) + 1
@@ -54,19 +43,9 @@ class Draft:
         for sec in self.sections:
             sec.codec = codec
 
-    def copy(self) -> "Draft":
-        return Draft([dataclasses.replace(s) for s in self.sections],
-                     [dataclasses.replace(layer) for layer in self.layers], self.sh_degree,
-                     dict(self.header))
-
     def build(self) -> bytes:
         return assemble(self.sections, self.layers, self.sh_degree,
                         header_overrides=self.header or None, store_when_larger=False)
-
-
-def stored(codec: Codec, raw: bytes) -> bytes:
-    """``raw`` as a section with ``codec`` stores it."""
-    return compress(codec, raw)
 
 
 # ----------------------------------------------------------------------------- byte edits
@@ -75,7 +54,7 @@ def counts(data: bytes) -> tuple[int, int]:
     return struct.unpack_from("<HH", data, 20)
 
 
-def layer_entry(data: bytes, layer: int) -> int:
+def layer_entry(layer: int) -> int:
     """Offset of layer ``layer``'s entry in the layer table."""
     return FIXED_HEADER_SIZE + 16 * layer
 

@@ -128,7 +128,7 @@ def header_reserved() -> bytes:
          ["R-9"])
 def layer_reserved() -> bytes:
     data = base_bytes()
-    return poke(data, layer_entry(data, 1) + 2, "B", 1)
+    return poke(data, layer_entry(1) + 2, "B", 1)
 
 
 @invalid("toc-flag-bit-set", "Bit 1 of a section's flags is set", "reserved-nonzero", ["R-15"])
@@ -268,8 +268,8 @@ def header_crc() -> bytes:
          "header-crc", ["R-8"])
 def header_field() -> bytes:
     data = base_bytes()
-    return poke(data, layer_entry(data, 1) + 8, "Q",
-                struct.unpack_from("<Q", data, layer_entry(data, 1) + 8)[0] + 1, repair=False)
+    return poke(data, layer_entry(1) + 8, "Q",
+                struct.unpack_from("<Q", data, layer_entry(1) + 8)[0] + 1, repair=False)
 
 
 # ====================================================================== section-crc
@@ -463,13 +463,13 @@ def length_wraps() -> bytes:
 @invalid("layer-1-kind-sketch", "Layer 1 has kind 0 (sketch)", "bad-layout", ["R-9"])
 def layer_kind() -> bytes:
     data = base_bytes()
-    return poke(data, layer_entry(data, 1), "B", 0)
+    return poke(data, layer_entry(1), "B", 0)
 
 
 @invalid("layer-0-kind-patch", "Layer 0 has kind 1 (patch)", "bad-layout", ["R-9"])
 def layer_0_kind() -> bytes:
     data = base_bytes()
-    return poke(data, layer_entry(data, 0), "B", 1)
+    return poke(data, layer_entry(0), "B", 1)
 
 
 @invalid("layer-counts-dont-add-up", "The header's gaussian_count is one less than the layers' "
@@ -483,7 +483,7 @@ def counts_sum() -> bytes:
          "bad-layout", ["R-9"])
 def end_offset_wrong() -> bytes:
     data = base_bytes()
-    entry = layer_entry(data, 1) + 8
+    entry = layer_entry(1) + 8
     return poke(data, entry, "Q", struct.unpack_from("<Q", data, entry)[0] - 1)
 
 

@@ -198,6 +198,10 @@ def _vector(doc: dict) -> Vector:
         for o in doc["outcomes"])
     if doc["kind"] not in KINDS:
         raise ValueError(f"kind {doc['kind']!r}")
+    if any((o.gaussians is None) == (o.error is None) for o in outcomes):
+        raise ValueError(f"{doc['id']}: an outcome needs exactly one of gaussians and error")
+    if expected is None and any(o.accepts for o in outcomes):
+        raise ValueError(f"{doc['id']}: decodes succeed but no expected output is given")
     return Vector(doc["id"], doc["kind"], doc["title"], tuple(doc["requirements"]),
                   doc["input"]["path"], doc["input"]["sha256"], int(doc["input"]["size"]),
                   outcomes, expected, doc.get("defect"))

@@ -124,8 +124,9 @@ class ExternalDecoder:
             try:
                 done = subprocess.run(args, stdin=subprocess.DEVNULL, capture_output=True,
                                       timeout=self.timeout)
-            except FileNotFoundError:
-                raise UsageError(f"cannot run the decoder: {args[0]} not found") from None
+            except OSError as exc:  # not found, not executable: the command line is wrong
+                raise UsageError(f"cannot run the decoder {args[0]}: "
+                                 f"{exc.strerror or exc}") from None
             except subprocess.TimeoutExpired:
                 return Decode(failure=f"ran past the {self.timeout:g} s timeout")
             stderr = done.stderr.decode("utf-8", "replace")

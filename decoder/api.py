@@ -149,9 +149,17 @@ def _last_decodable_layer(header: Header, available: int, max_layer: int | None)
         for k in range(last - 1, -1, -1):
             if header.layers[k].end_offset == available:
                 return k
+    complete = _complete_layers(header, available)
+    whole = f"; layers 0..{complete - 1} are complete" if complete else "; no layer is complete"
     raise TruncatedError(f"the data ends at byte {available}, inside layer "
                          f"{_layer_at(header, available)} (layer boundaries: "
-                         f"{[layer.end_offset for layer in header.layers]})")
+                         f"{[layer.end_offset for layer in header.layers]}){whole}",
+                         complete_layers=complete)
+
+
+def _complete_layers(header: Header, available: int) -> int:
+    """How many leading layers lie whole within the first ``available`` bytes."""
+    return sum(layer.end_offset <= available for layer in header.layers)
 
 
 def _layer_at(header: Header, offset: int) -> int:
@@ -239,6 +247,27 @@ class FileInfo:
     gzip_layer_ends: list[int] | None = None
     metadata: dict | None = None
     metadata_error: str | None = None
+    available: int | None = None
+    """Bytes of the (inner, inflated) file present; None: all of them (``file_size``)."""
+
+    @property
+    def complete_layers(self) -> int:
+        """How many leading layers are whole in the data: layers 0..complete_layers-1 decode."""
+        return _complete_layers(self.header, self.available_bytes)
+
+    @property
+    def available_bytes(self) -> int:
+        return self.header.file_size if self.available is None else self.available
+
+    @property
+    def truncated(self) -> bool:
+        """True when the data ends inside a layer: a plain decode fails, ``max_layer`` helps.
+
+        Data that ends exactly at a layer boundary is a valid prefix ([R-11]), not truncated.
+        """
+        boundaries = {layer.end_offset for layer in self.header.layers}
+        return self.available_bytes < self.header.file_size and \
+            self.available_bytes not in boundaries
 
     def to_json(self) -> dict:
         """The ``spcodec info --json`` document (see the spec's annex on ``info``)."""
@@ -246,7 +275,8 @@ class FileInfo:
         layers = []
         for layer in h.layers:
             entry = {"index": layer.index, "kind": layer.kind.name.lower(),
-                     "gaussians": layer.gaussian_count, "end_offset": layer.end_offset}
+                     "gaussians": layer.gaussian_count, "end_offset": layer.end_offset,
+                     "complete": layer.end_offset <= self.available_bytes}
             if self.gzip:
                 entry["inner_end_offset"] = layer.end_offset
                 entry["end_offset"] = (self.gzip_layer_ends[layer.index]
@@ -260,6 +290,9 @@ class FileInfo:
             "header_size": h.header_size,
             "gzip": self.gzip,
             "stored_size": self.stored_size,
+            "available_bytes": self.available_bytes,
+            "complete_layers": self.complete_layers,
+            "truncated": self.truncated,
             "sections": [
                 {"index": s.index, "type": s.type_name, "type_id": s.type,
                  "codec": _codec_name(s.codec), "layer": s.layer, "offset": s.offset,
@@ -280,18 +313,25 @@ def _codec_name(codec: int) -> str:
 
 
 def inspect(source: Source, limits: Limits | None = None) -> FileInfo:
-    """Describe a file from its header; reads only the header and metadata of a path."""
+    """Describe a file from its header, and say which of its layers the data holds whole.
+
+    Of a plain file on disk only the header and metadata are read (its size tells the rest); a
+    gzip-wrapped one is inflated whole, since only that tells how much inner data it holds.
+    """
     limits = limits or DEFAULT_LIMITS
     if isinstance(source, (str, os.PathLike)):
         data = _read_header_prefix(source, limits)
         stored = os.path.getsize(source)
+        if is_gzip(data) and len(data) < stored:
+            data = read_source(source, limits)
     else:
         data = read_source(source, limits)
         stored = len(data)
     wrapped = is_gzip(data)
     inner, _ = _unwrap(data, limits)
     header = read_header(inner, limits)
-    info = FileInfo(header, wrapped, stored, _gzip_layer_ends(data, header) if wrapped else None)
+    info = FileInfo(header, wrapped, stored, _gzip_layer_ends(data, header) if wrapped else None,
+                    available=len(inner) if wrapped else stored)
     meta = header.layers[0].section(SectionType.METADATA)
     if meta is not None and len(inner) >= meta.end:
         try:
@@ -490,7 +530,8 @@ class StreamDecoder:
         boundary = {layer.end_offset for layer in self.header.layers}
         if self.max_layer is not None or len(self._buffer) not in boundary:
             raise TruncatedError(f"the data ends at byte {len(self._buffer)}, inside layer "
-                                 f"{self._next_layer}")
+                                 f"{self._next_layer}",
+                                 complete_layers=_complete_layers(self.header, len(self._buffer)))
 
 
 def _check_fixed_header(buffer: bytearray, limits: Limits) -> None:

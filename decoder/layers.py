@@ -331,12 +331,18 @@ def prepare_patch_layer(payloads: Payloads, header: Header, index: int,
 
 def fill_patch_layer(plan: PatchPlan, codebooks: list[Codebook], out: GaussianCloud) -> None:
     """Positions plus codebook lookups into ``out`` ([R-56])."""
-    n = plan.gaussian_count
     out.means[:] = plan.positions.decode()
+    fill_patch_attributes(plan.columns, codebooks, out)
+
+
+def fill_patch_attributes(columns: dict[PatchAttribute, np.ndarray], codebooks: list[Codebook],
+                          out: GaussianCloud) -> None:
+    """Every attribute but the position from index columns ((groups, n) uint8 per attribute)."""
+    n = len(out)
     targets = {PatchAttribute.SCALE: out.scales, PatchAttribute.ROTATION: out.quats,
                PatchAttribute.OPACITY: out.opacities[:, None], PatchAttribute.COLOR_DC: out.sh_dc}
     for cb in codebooks:
-        values = gather(cb, plan.columns[cb.attribute])
+        values = gather(cb, columns[cb.attribute])
         if cb.attribute == PatchAttribute.ROTATION and cb.entry_dim != 4:
             values = decode_rotation(values)
         if cb.attribute in targets:

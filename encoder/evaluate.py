@@ -9,12 +9,17 @@ Two modes:
   compared with the photographs.
 
 PSNR and SSIM are always reported, LPIPS only when its weights are on disk (``None`` otherwise).
+A model that scores below :data:`MISMATCH_PSNR_DB` against a dataset is reported with a
+:class:`DatasetMismatchWarning` (:func:`warn_if_mismatched`). Models with NaN or infinite
+parameters are refused, as the encoder refuses them.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -24,6 +29,36 @@ from spcodec.cloud import GaussianCloud
 
 from .cameras import Camera
 from .metrics import image_metrics
+
+MISMATCH_PSNR_DB = 15.0
+"""Mean PSNR (dB) of a model against a dataset's images below which they likely do not match.
+
+Trained 3DGS models score about 23-33 dB against their own test images on the benchmark scenes of
+the literature; a model of another scene, or one in another coordinate frame than the dataset's
+cameras, scores about what unrelated images do (guitar against the lego dataset: 8.9 dB). A very
+coarse model (a sketch-only prefix) may fall below it too, hence a warning and not an error."""
+
+
+class DatasetMismatchWarning(UserWarning):
+    """A model scores so low against a dataset's images that they likely show different scenes."""
+
+
+def warn_if_mismatched(psnr_db: float, dataset: str | os.PathLike | None = None) -> bool:
+    """Warn with a :class:`DatasetMismatchWarning` when ``psnr_db`` is below ``MISMATCH_PSNR_DB``.
+
+    ``psnr_db`` is the PSNR of a model's renders against target images at their cameras (the mean
+    over views); ``dataset`` names the images in the message. Returns True when it warned. The one
+    check for "wrong model or wrong images": :func:`evaluate_against_dataset` runs it on every
+    result, and a training loop can run it at iteration 0, before optimizing a model that cannot
+    match. NaN (no views) never warns.
+    """
+    if not psnr_db < MISMATCH_PSNR_DB:
+        return False
+    images = f"the images of {dataset}" if dataset is not None else "the target images"
+    warnings.warn(f"PSNR {psnr_db:.1f} dB against {images} is below {MISMATCH_PSNR_DB:g} dB: the "
+                  "model and the images likely show different scenes (or the model is in another "
+                  "coordinate frame than their cameras)", DatasetMismatchWarning, stacklevel=2)
+    return True
 
 
 @dataclass
@@ -121,10 +156,11 @@ def _renderer(config: EvalConfig, background: tuple[float, float, float]):
 def evaluate_against_reference(model: GaussianCloud, reference: GaussianCloud,
                                config: EvalConfig | None = None) -> EvalReport:
     """Render both models at held-out views sampled around ``reference`` and compare."""
-    from .images import side_by_side, write_png
     from .views import sample_views
 
     config = config or EvalConfig()
+    model.check_finite()
+    reference.check_finite()
     start = time.perf_counter()
     cameras = sample_views(reference, config.views, resolution=(config.resolution,
                                                                 config.resolution),
@@ -136,19 +172,21 @@ def evaluate_against_reference(model: GaussianCloud, reference: GaussianCloud,
         ref_image, _ = draw(theirs, camera)
         image, seconds = draw(ours, camera)
         report.views.append(_score(f"view_{i:03d}", ref_image, image, seconds))
-        if config.save_renders is not None:
-            write_png(Path(config.save_renders) / f"view_{i:03d}.png", side_by_side(ref_image, image))
+        _save_render(config, f"view_{i:03d}.png", ref_image, image)
     report.seconds = time.perf_counter() - start
     return report
 
 
 def evaluate_against_dataset(model: GaussianCloud, dataset_path: Path,
                              config: EvalConfig | None = None) -> EvalReport:
-    """Render ``model`` at the dataset's test views and compare with its images."""
+    """Render ``model`` at the dataset's test views and compare with its images.
+
+    Warns (:class:`DatasetMismatchWarning`) when the mean PSNR says model and images do not match.
+    """
     from .datasets import load_dataset
-    from .images import side_by_side, write_png
 
     config = config or EvalConfig()
+    model.check_finite()
     start = time.perf_counter()
     dataset = load_dataset(dataset_path, downscale=config.downscale)
     views = dataset.test[:config.max_views] if config.max_views else dataset.test
@@ -160,11 +198,22 @@ def evaluate_against_dataset(model: GaussianCloud, dataset_path: Path,
         photo = view.load_image()
         image, seconds = draw(params, view.camera)
         report.views.append(_score(view.name, photo, image, seconds, view.valid_mask()))
-        if config.save_renders is not None:
-            write_png(Path(config.save_renders) / f"{Path(view.name).stem}.png",
-                      side_by_side(photo, image))
+        _save_render(config, f"{Path(view.name).stem}.png", photo, image)
     report.seconds = time.perf_counter() - start
+    warn_if_mismatched(report.psnr, dataset_path)
     return report
+
+
+def _save_render(config: EvalConfig, name: str, reference: np.ndarray, image: np.ndarray) -> None:
+    """Write 'reference | ours | error' as ``name`` into ``config.save_renders`` (if set), creating
+    the folder with the first image."""
+    if config.save_renders is None:
+        return
+    from .images import side_by_side, write_png
+
+    folder = Path(config.save_renders)
+    folder.mkdir(parents=True, exist_ok=True)
+    write_png(folder / name, side_by_side(reference, image))
 
 
 def _score(name: str, reference: np.ndarray, image: np.ndarray, seconds: float,

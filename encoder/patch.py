@@ -17,6 +17,7 @@ import numpy as np
 from spcodec.attributes import PatchAttribute, canonical_rotation, encode_opacity
 from spcodec.cloud import GaussianCloud
 from spcodec.container import MAX_CODEBOOK_ENTRIES
+from spcodec.decoder.layers import fill_patch_attributes
 from spcodec.sections import Codebook, PatchPositions
 from spcodec.writer import PatchLayer
 
@@ -76,7 +77,7 @@ def coded_attributes(cloud: GaussianCloud) -> dict[PatchAttribute, np.ndarray]:
     return out
 
 
-def importance(cloud: GaussianCloud) -> np.ndarray:
+def footprint_importance(cloud: GaussianCloud) -> np.ndarray:
     """A visibility proxy: opacity times the area of the two largest axes' 1-sigma ellipse."""
     scales = np.sort(cloud.scales.astype(np.float64), axis=1)
     return encode_opacity(cloud.opacities) * np.exp(scales[:, 1] + scales[:, 2])
@@ -162,8 +163,49 @@ def assign(values: np.ndarray, entries: np.ndarray) -> np.ndarray:
 
 
 @dataclass
+class Quantized:
+    """A patch cloud's attributes as codebooks and indices, before it is split into layers.
+
+    ``indices[attr]`` is uint8 (n, groups): row ``i`` holds Gaussian ``i``'s entry for each of the
+    attribute's ``entry_dim``-wide groups, in the order of the cloud that was quantized.
+    """
+
+    codebooks: list[Codebook]
+    indices: dict[PatchAttribute, np.ndarray]
+
+    def __len__(self) -> int:
+        return len(next(iter(self.indices.values()))) if self.indices else 0
+
+    def subset(self, rows: np.ndarray) -> "Quantized":
+        """The same codebooks with the indices of ``rows`` only (in that order)."""
+        return Quantized(self.codebooks, {a: idx[rows] for a, idx in self.indices.items()})
+
+
+def dequantize(quantized: Quantized) -> dict[PatchAttribute, np.ndarray]:
+    """The attribute values the indices select, (n, width) float32, in the coded domain of
+    :mod:`spcodec.attributes` (the domain of :func:`coded_attributes`): the values a decoder looks
+    up before its per-attribute mappings (rotation normalization, opacity logit)."""
+    out = {}
+    for cb in quantized.codebooks:
+        idx = quantized.indices[cb.attribute]
+        out[cb.attribute] = cb.entries.astype(np.float32)[idx].reshape(len(idx), cb.attribute.width)
+    return out
+
+
+def quantized_cloud(quantized: Quantized, means: np.ndarray, sh_degree: int) -> GaussianCloud:
+    """The cloud a decoder reconstructs from ``quantized``, at ``means`` taken as they are (the
+    decoder's own lookups and mappings, so it equals the decoded patch Gaussians but for the
+    position coding)."""
+    cloud = GaussianCloud.zeros(len(means), sh_degree)
+    cloud.means[:] = means
+    fill_patch_attributes({a: idx.T for a, idx in quantized.indices.items()}, quantized.codebooks,
+                          cloud)
+    return cloud
+
+
+@dataclass
 class PatchEncoding:
-    """Result of :meth:`PatchEncoder.encode`."""
+    """Result of :meth:`PatchEncoder.layer` and :meth:`PatchEncoder.encode`."""
 
     codebooks: list[Codebook]
     layers: list[PatchLayer]
@@ -172,39 +214,93 @@ class PatchEncoding:
 
 
 class PatchEncoder:
-    """Codebooks + indices + positions for patch Gaussians, in importance layers."""
+    """Codebooks + indices + positions for patch Gaussians, in importance layers.
+
+    The steps are separately callable so that a retraining loop can run them in its own order
+    (for example: quantize, fine-tune the codebook entries with the indices fixed, re-assign,
+    fine-tune again, then layer)::
+
+        enc = PatchEncoder(config, seed)
+        q = enc.quantize(cloud)                   # codebooks (k-means) and indices
+        q.indices = enc.assign(cloud, q.codebooks)  # indices against given codebooks
+        out = enc.layer(cloud, q, importance)     # layers, Morton order within, positions coded
+        out = enc.encode(cloud)                   # all of the above with the default importance
+    """
 
     def __init__(self, config: PatchConfig | None = None, seed: int = 0) -> None:
         self.config = config or PatchConfig()
         self.seed = seed
 
-    def encode(self, cloud: GaussianCloud) -> PatchEncoding:
+    def entry_dim(self, attr: PatchAttribute) -> int:
+        """The configured entry dimension of ``attr``, checked against its width."""
+        dim = self.config.entry_dims.get(attr.name, attr.width)
+        if dim < 1 or attr.width % dim:
+            raise ValueError(f"entry dimension {dim} does not divide {attr.name}'s width")
+        return dim
+
+    def quantize(self, cloud: GaussianCloud, weights: np.ndarray | None = None) -> Quantized:
+        """Train one codebook per attribute (k-means, seeded) and assign every Gaussian to it.
+
+        ``weights`` (n,) weight each Gaussian's samples in k-means, so entries go where they are
+        seen (None: unweighted). Deterministic for a given seed, config and input.
+        """
         cfg = self.config
         if cfg.codebook_size > MAX_CODEBOOK_ENTRIES or cfg.codebook_size < 1:
             raise ValueError(f"codebook_size must be in 1..{MAX_CODEBOOK_ENTRIES}")
+        if weights is not None and np.shape(weights) != (len(cloud),):
+            raise ValueError(f"weights must have shape ({len(cloud)},), got {np.shape(weights)}")
         values = coded_attributes(cloud)
-        score = importance(cloud)
-        weights = score / score.mean() if cfg.weighted_kmeans and len(cloud) and score.mean() > 0 \
-            else None
         codebooks = []
         for i, (attr, vals) in enumerate(values.items()):
-            dim = cfg.entry_dims.get(attr.name, attr.width)
-            if attr.width % dim:
-                raise ValueError(f"entry dimension {dim} does not divide {attr.name}'s width")
+            dim = self.entry_dim(attr)
             if len(cloud) == 0:
                 entries = np.zeros((1, dim), np.float16)
             else:
                 entries = train_codebook(vals, dim, cfg.codebook_size, weights, cfg,
                                          self.seed + 7919 * i)
             codebooks.append(Codebook(attr, entries))
-        indices = {cb.attribute: assign(values[cb.attribute], cb.entries) for cb in codebooks}
+        return Quantized(codebooks, self._assign_values(values, codebooks))
+
+    def assign(self, cloud: GaussianCloud, codebooks: list[Codebook]
+               ) -> dict[PatchAttribute, np.ndarray]:
+        """Indices (uint8, (n, groups) per attribute) of the nearest entry of ``codebooks`` for
+        every group of every Gaussian of ``cloud``; the codebooks must cover the cloud's SH
+        degree exactly."""
+        expected = PatchAttribute.for_sh_degree(cloud.sh_degree)
+        if [cb.attribute for cb in codebooks] != expected:
+            raise ValueError(f"codebooks for {[cb.attribute.name for cb in codebooks]}, the cloud "
+                             f"needs {[a.name for a in expected]}")
+        return self._assign_values(coded_attributes(cloud), codebooks)
+
+    @staticmethod
+    def _assign_values(values: dict[PatchAttribute, np.ndarray], codebooks: list[Codebook]
+                       ) -> dict[PatchAttribute, np.ndarray]:
+        return {cb.attribute: assign(values[cb.attribute], cb.entries) for cb in codebooks}
+
+    def layer(self, cloud: GaussianCloud, quantized: Quantized, importance: np.ndarray
+              ) -> PatchEncoding:
+        """Split ``cloud`` (with its ``quantized`` attributes) into layers of decreasing
+        ``importance`` (n,), sized by the config; Morton order within a layer; positions coded."""
+        cfg = self.config
+        if np.shape(importance) != (len(cloud),) or len(quantized) != len(cloud):
+            raise ValueError("cloud, quantized and importance must describe the same Gaussians")
         layers, orders = [], []
-        for members in split_layers(score, cfg.layer_fractions, cfg.layers):
+        for members in split_layers(importance, cfg.layer_fractions, cfg.layers):
             if len(members):
                 members = members[np.argsort(morton_codes(cloud.means[members].astype(np.float64)),
                                              kind="stable")]
             positions = encode_positions(cloud.means[members], cfg.position_mode,
                                          cfg.position_bits)
-            layers.append(PatchLayer(positions, {a: idx[members] for a, idx in indices.items()}))
+            layers.append(PatchLayer(positions, quantized.subset(members).indices))
             orders.append(members)
-        return PatchEncoding(codebooks, layers, orders)
+        return PatchEncoding(quantized.codebooks, layers, orders)
+
+    def encode(self, cloud: GaussianCloud, importance: np.ndarray | None = None) -> PatchEncoding:
+        """:meth:`quantize` then :meth:`layer`. ``importance`` (n,) orders the layers and, with
+        ``weighted_kmeans``, weights k-means (None: the :func:`footprint_importance` proxy)."""
+        if importance is None:
+            importance = footprint_importance(cloud)
+        importance = np.asarray(importance, np.float64)
+        mean = importance.mean() if len(cloud) else 0.0
+        weights = importance / mean if self.config.weighted_kmeans and mean > 0 else None
+        return self.layer(cloud, self.quantize(cloud, weights), importance)

@@ -11,7 +11,8 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass, field
-from typing import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -23,9 +24,12 @@ from spcodec.errors import FormatError, UsageError
 from spcodec.writer import EncodedScene, WriteOptions, build_bitstream
 
 from .categorize import CategorizeConfig, categorize
-from .patch import PatchConfig, PatchEncoder
+from .patch import PatchConfig, PatchEncoder, PatchEncoding
 from .refine import RefineConfig, refine
 from .sketch import SketchConfig, SketchEncoder
+
+if TYPE_CHECKING:
+    from .retrain import RetrainConfig, RunControl
 
 ProgressFactory = Callable[[str, int | None], "Stage"]
 
@@ -51,6 +55,11 @@ class EncoderConfig:
     codec: str = "zlib"
     #: Wrap the file in gzip (the paper's final step; a few percent smaller).
     gzip: bool = False
+    #: Prune and retrain the patch (None: the no-retrain encoder). See encoder/retrain.py.
+    retrain: "RetrainConfig | None" = None
+    #: Rate control: aim the file at this many bytes (within 5 %) by choosing how many patch
+    #: Gaussians survive pruning (None: the size follows from the settings).
+    target_size: int | None = None
 
     def seeded(self) -> "EncoderConfig":
         """A copy whose stage configs carry ``seed``."""
@@ -77,9 +86,10 @@ class EncodeResult:
 
 
 class Stage:
-    """Progress of one stage; the default prints nothing."""
+    """Progress of one stage; the default prints nothing. ``update`` may carry figures to show
+    (training steps pass ``loss`` and ``psnr``)."""
 
-    def update(self, count: int = 1) -> None:  # pragma: no cover - trivial
+    def update(self, count: int = 1, **figures: float) -> None:  # pragma: no cover - trivial
         pass
 
     def done(self, summary: str = "") -> None:  # pragma: no cover - trivial
@@ -94,88 +104,170 @@ def validate_input(cloud: GaussianCloud) -> None:
     """One-line errors for inputs the encoder cannot take."""
     if len(cloud) == 0:
         raise UsageError("the scene has no Gaussians to encode")
-    for name, array in cloud.arrays().items():
-        bad = ~np.isfinite(array)
-        if bad.any():
-            rows = np.unique(np.nonzero(bad)[0])
-            raise FormatError(f"{len(rows)} Gaussians have NaN or infinite {name} (first: "
-                              f"#{rows[0]}); clean the scene before encoding", "ply-invalid")
+    cloud.check_finite()
     if cloud.sh_degree > 3:  # pragma: no cover - GaussianCloud already enforces 0..3
         raise FormatError("SH degree above 3", "ply-invalid")
 
 
 def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
-           progress: ProgressFactory = _silent, source_name: str | None = None) -> EncodeResult:
-    """Encode ``cloud`` into a bitstream (without retraining)."""
+           progress: ProgressFactory = _silent, source_name: str | None = None,
+           dataset: str | Path | None = None, control: "RunControl | None" = None) -> EncodeResult:
+    """Encode ``cloud`` into a bitstream.
+
+    With ``config.retrain`` set, the patch is pruned and retrained against ``dataset``'s training
+    images (a folder the dataset loaders read) or, without one, against renders of ``cloud``
+    itself (distillation); ``control`` carries the device, checkpoints and the stop request.
+    ``config.target_size`` turns on rate control (:mod:`.ratecontrol`).
+    """
     config = (config or EncoderConfig()).seeded()
     validate_input(cloud)
+    if dataset is not None and config.retrain is None:
+        raise UsageError("a dataset is only used for retraining: drop it or enable retraining")
     try:
         codec = Codec[config.codec.upper()]
     except KeyError:
         raise UsageError(f"unknown codec {config.codec!r}: use zlib or zstd") from None
     times: dict[str, float] = {}
-    n = len(cloud)
-
-    sketch_idx: list[np.ndarray] = []
-    sketch_clusters, patch_idx = [], np.arange(n)
-    sketch_stats: dict = {"clusters_found": 0, "clusters_accepted": 0}
-    if config.use_sketch:
+    sketch = encode_sketch(cloud, config, progress, times)
+    metadata = {"encoder": "spcodec", "version": _version(), "source": source_name,
+                "settings": config.to_json()}
+    writer = SceneWriter(cloud.sh_degree, sketch.clusters, metadata,
+                         WriteOptions(codec=codec, gzip=config.gzip))
+    patch_cloud = cloud.subset(sketch.patch_idx)
+    extra: dict = {}
+    if config.retrain is None and config.target_size is None:
         t = time.perf_counter()
-        stage = progress("categorize", None)
-        labels = categorize(cloud, config.categorize)
-        found = int(labels.max()) + 1 if len(labels) else 0
-        stage.done(f"{found} clusters, {(labels >= 0).mean():.1%} of Gaussians clustered")
-        times["categorize"] = time.perf_counter() - t
+        stage = progress("patch", None)
+        patch = PatchEncoder(config.patch, seed=config.seed).encode(patch_cloud)
+        rows = np.arange(len(patch_cloud))
+        stage.done(f"{len(patch_cloud)} Gaussians in {len(patch.layers)} layers")
+        times["patch"] = time.perf_counter() - t
+    else:
+        from .prune_retrain import encode_pruned_patch
 
-        t = time.perf_counter()
-        stage = progress("refine", None)
-        refined = refine(cloud, labels, config.refine, n_jobs=config.n_jobs)
-        stage.done(f"{len(refined.clusters)} clusters accepted, "
-                   f"{refined.stats.sketch_gaussians} sketch Gaussians")
-        times["refine"] = time.perf_counter() - t
-
-        t = time.perf_counter()
-        stage = progress("sketch", len(refined.clusters))
-        sketch = SketchEncoder(config.sketch, config.refine).encode(cloud, refined, stage.update)
-        sketch_clusters, sketch_idx = sketch.clusters, sketch.sources
-        patch_idx = np.sort(np.concatenate([refined.patch, sketch.to_patch]))
-        stage.done(f"{len(sketch.clusters)} clusters, {sum(map(len, sketch_idx))} Gaussians "
-                   f"(Draco step {sketch.step:.3g}, {sketch.stats['rejected_clusters']} clusters "
-                   f"and {sketch.stats['duplicates']} duplicates back to patch)")
-        times["sketch"] = time.perf_counter() - t
-        sketch_stats = {"clusters_found": found, "clusters_accepted": len(refined.clusters),
-                        "clusters_encoded": len(sketch.clusters), "draco_step": sketch.step,
-                        "scene_diameter": sketch.diameter, **sketch.stats,
-                        "refine": {"patch_by_reason": refined.stats.patch_by_reason,
-                                   "splits": refined.stats.splits, "fits": refined.stats.fits}}
-
-    t = time.perf_counter()
-    stage = progress("patch", None)
-    patch_cloud = cloud.subset(patch_idx)
-    patch = PatchEncoder(config.patch, seed=config.seed).encode(patch_cloud)
-    stage.done(f"{len(patch_idx)} Gaussians in {len(patch.layers)} layers")
-    times["patch"] = time.perf_counter() - t
+        choice = encode_pruned_patch(cloud, sketch, patch_cloud, writer, config, dataset, control,
+                                     progress, times)
+        patch, rows, extra = choice.encoding, choice.rows, choice.stats
 
     t = time.perf_counter()
     stage = progress("write", None)
-    metadata = {"encoder": "spcodec", "version": _version(), "source": source_name,
-                "settings": config.to_json()}
-    scene = EncodedScene(cloud.sh_degree, sketch_clusters, patch.codebooks,
-                         patch.layers if len(patch_idx) else [], metadata)
-    data = build_bitstream(scene, WriteOptions(codec=codec, gzip=config.gzip))
-    source = np.concatenate(sketch_idx + [patch_idx[o] for o in patch.order]).astype(np.int64) \
-        if (sketch_idx or len(patch_idx)) else np.zeros(0, np.int64)
+    data = writer.write(patch)
+    patch_idx = sketch.patch_idx[rows]
+    source = np.concatenate(sketch.sources + [patch_idx[o] for o in patch.order]).astype(np.int64) \
+        if (sketch.sources or len(patch_idx)) else np.zeros(0, np.int64)
     stage.done(f"{len(data)} bytes")
     times["write"] = time.perf_counter() - t
 
     stats = {
-        "gaussians": n, "sketch_gaussians": int(sum(map(len, sketch_idx))),
-        "patch_gaussians": int(len(patch_idx)), "patch_layers": len(scene.patch_layers),
-        "sketch": sketch_stats, "bytes": len(data), "sections": section_sizes(data),
-        "seconds": times,
+        "gaussians": len(cloud), "sketch_gaussians": int(sum(map(len, sketch.sources))),
+        "patch_gaussians": int(len(patch_idx)), "patch_layers": len(writer.scene(patch).patch_layers),
+        "sketch": sketch.stats, "bytes": len(data), "sections": section_sizes(data),
+        "seconds": times, **extra,
     }
     stats["sketch_error"] = sketch_error(data, cloud, source, stats["sketch_gaussians"])
-    return EncodeResult(data, scene, source, stats)
+    if config.retrain is not None:
+        t = time.perf_counter()
+        stage = progress("evaluate", None)
+        stats["quality"] = judge(data, cloud, config.retrain, dataset, control)
+        stage.done(f"PSNR {stats['quality']['psnr']:.2f} dB, SSIM {stats['quality']['ssim']:.4f} "
+                   f"against {stats['quality']['against']}")
+        times["evaluate"] = time.perf_counter() - t
+    return EncodeResult(data, writer.scene(patch), source, stats)
+
+
+def judge(data: bytes, original: GaussianCloud, retrain: "RetrainConfig",
+          dataset: str | Path | None, control: "RunControl | None") -> dict:
+    """Quality of the written file as ``spcodec eval`` measures it with its defaults: against the
+    dataset's test images, or against renders of the original at the held-out sampled views
+    (with the encode's ``up`` and ``antialiased``), so the two commands report the same PSNR."""
+    from .evaluate import EvalConfig, evaluate_against_dataset, evaluate_against_reference
+
+    device = control.device if control is not None else "auto"
+    decoded = decode_layers(data).cloud
+    if dataset is not None:
+        report = evaluate_against_dataset(decoded, Path(dataset), EvalConfig(
+            downscale=retrain.downscale, device=device))
+        against = f"the test images of {dataset}"
+    else:
+        report = evaluate_against_reference(decoded, original, EvalConfig(
+            device=device, up=retrain.up, antialiased=retrain.antialiased))
+        against = "renders of the original at held-out views"
+    doc = report.to_json()
+    return {"psnr": doc["psnr"], "ssim": doc["ssim"], "lpips": doc["lpips"],
+            "views": doc["views"], "width": doc["width"], "height": doc["height"],
+            "against": against}
+
+
+@dataclass
+class SketchOutcome:
+    """The sketch stage's result: encoded clusters and where every input Gaussian went."""
+
+    clusters: list
+    sources: list[np.ndarray]
+    """Per encoded cluster, the indices of its input Gaussians in stored order."""
+    patch_idx: np.ndarray
+    """Sorted indices of the input Gaussians left to the patch."""
+    stats: dict
+
+
+def encode_sketch(cloud: GaussianCloud, config: EncoderConfig, progress: ProgressFactory,
+                  times: dict[str, float]) -> SketchOutcome:
+    """Categorize, refine and encode the sketch (nothing when ``use_sketch`` is off)."""
+    if not config.use_sketch:
+        return SketchOutcome([], [], np.arange(len(cloud)),
+                             {"clusters_found": 0, "clusters_accepted": 0})
+    t = time.perf_counter()
+    stage = progress("categorize", None)
+    labels = categorize(cloud, config.categorize)
+    found = int(labels.max()) + 1 if len(labels) else 0
+    stage.done(f"{found} clusters, {(labels >= 0).mean():.1%} of Gaussians clustered")
+    times["categorize"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    stage = progress("refine", None)
+    refined = refine(cloud, labels, config.refine, n_jobs=config.n_jobs)
+    stage.done(f"{len(refined.clusters)} clusters accepted, "
+               f"{refined.stats.sketch_gaussians} sketch Gaussians")
+    times["refine"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    stage = progress("sketch", len(refined.clusters))
+    sketch = SketchEncoder(config.sketch, config.refine).encode(cloud, refined, stage.update)
+    patch_idx = np.sort(np.concatenate([refined.patch, sketch.to_patch]))
+    stage.done(f"{len(sketch.clusters)} clusters, {sum(map(len, sketch.sources))} Gaussians "
+               f"(Draco step {sketch.step:.3g}, {sketch.stats['rejected_clusters']} clusters "
+               f"and {sketch.stats['duplicates']} duplicates back to patch)")
+    times["sketch"] = time.perf_counter() - t
+    stats = {"clusters_found": found, "clusters_accepted": len(refined.clusters),
+             "clusters_encoded": len(sketch.clusters), "draco_step": sketch.step,
+             "scene_diameter": sketch.diameter, **sketch.stats,
+             "refine": {"patch_by_reason": refined.stats.patch_by_reason,
+                        "splits": refined.stats.splits, "fits": refined.stats.fits}}
+    return SketchOutcome(sketch.clusters, sketch.sources, patch_idx, stats)
+
+
+@dataclass
+class SceneWriter:
+    """Writes the file of one scene for any patch encoding (the sketch and metadata are fixed),
+    so rate control can size trial files exactly as the final one."""
+
+    sh_degree: int
+    sketch: list
+    metadata: dict
+    options: WriteOptions
+
+    def scene(self, patch: PatchEncoding | None) -> EncodedScene:
+        if patch is None:
+            return EncodedScene(self.sh_degree, self.sketch, [], [], self.metadata)
+        layers = patch.layers if sum(map(len, patch.layers)) else []
+        return EncodedScene(self.sh_degree, self.sketch, patch.codebooks, layers, self.metadata)
+
+    def write(self, patch: PatchEncoding | None) -> bytes:
+        return build_bitstream(self.scene(patch), self.options)
+
+    def decoded_sketch(self) -> GaussianCloud:
+        """The sketch exactly as a decoder will see it (layer 0 of a sketch-only file)."""
+        return decode_layers(self.write(None), max_layer=0).cloud
 
 
 def section_sizes(data: bytes) -> dict[str, int]:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 
 from .pipeline import EncoderConfig
+from .retrain import RetrainConfig
 
 _SH_BANDS = {"SH_BAND_1": 9, "SH_BAND_2": 15, "SH_BAND_3": 21}
 _SH_TRIPLETS = {"SH_BAND_1": 3, "SH_BAND_2": 3, "SH_BAND_3": 3}
@@ -29,24 +30,33 @@ PRESETS: dict[str, dict] = {
     # Smallest files: whole-vector codebooks everywhere and more sketch. Quality depends on the
     # scene: fine on large Gaussians, poor on many small ones (donut 28.5 dB).
     "lowrate": dict(entry_dims={"SCALE": 3, "ROTATION": 4, "OPACITY": 1, "COLOR_DC": 3,
-                                **_SH_BANDS}, tau_max=0.3),
+                                **_SH_BANDS}, tau_max=0.3,
+                    retrain=dict(patch_downsample=8.0, iterations=3000)),
     # The default: >= 37 dB on every shared scene at about half of SPZ's size.
     "balanced": dict(entry_dims={"SCALE": 1, "ROTATION": 2, "OPACITY": 1, "COLOR_DC": 3,
-                                 **_SH_BANDS}, tau_max=0.1),
+                                 **_SH_BANDS}, tau_max=0.1,
+                     retrain=dict(patch_downsample=4.0, iterations=3000)),
     # Near-transparent: per-channel colour and one index per RGB SH coefficient (>= 42 dB).
     "highrate": dict(entry_dims={"SCALE": 1, "ROTATION": 2, "OPACITY": 1, "COLOR_DC": 1,
-                                 **_SH_TRIPLETS}, tau_max=0.1),
+                                 **_SH_TRIPLETS}, tau_max=0.1,
+                     retrain=dict(patch_downsample=2.0, iterations=3000)),
 }
 
 
-def preset_config(name: str, base: EncoderConfig | None = None) -> EncoderConfig:
-    """``base`` (default: a fresh EncoderConfig) with the preset's settings applied."""
+def preset_config(name: str, base: EncoderConfig | None = None,
+                  retrain: bool = False) -> EncoderConfig:
+    """``base`` (default: a fresh EncoderConfig) with the preset's settings applied; with
+    ``retrain``, also its retraining settings (on ``base.retrain`` or a default RetrainConfig)."""
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}: use one of {', '.join(PRESETS)}")
     base = base or EncoderConfig()
     values = PRESETS[name]
+    retrain_config = base.retrain
+    if retrain:
+        retrain_config = dataclasses.replace(base.retrain or RetrainConfig(), **values["retrain"])
     return dataclasses.replace(
         base,
         patch=dataclasses.replace(base.patch, entry_dims=dict(values["entry_dims"])),
         refine=dataclasses.replace(base.refine, tau_max=values["tau_max"]),
+        retrain=retrain_config,
     )

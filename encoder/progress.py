@@ -1,4 +1,9 @@
-"""Progress display for the command line: one line per stage, a bar for counted stages."""
+"""Progress display for the command line: one line per stage, a bar for counted stages.
+
+On a terminal a counted stage shows a tqdm bar (rate, ETA and the figures the stage reports, such
+as a training step's loss and PSNR); elsewhere (a log file, CI) it prints a line every 5 % with
+the same figures, so a long run is never silent.
+"""
 
 from __future__ import annotations
 
@@ -7,23 +12,42 @@ import time
 
 from .pipeline import Stage
 
+_LOG_STEPS = 20
+"""Lines printed over a counted stage when stderr is not a terminal."""
+
 
 class _PrintedStage(Stage):
     def __init__(self, name: str, total: int | None, index: int, enabled: bool) -> None:
-        self.name, self.index, self.enabled = name, index, enabled
+        self.name, self.index, self.enabled, self.total = name, index, enabled, total
         self.start = time.perf_counter()
+        self.count = 0
         self.bar = None
         if enabled:
             if total and sys.stderr.isatty():
                 from tqdm import tqdm
-                self.bar = tqdm(total=total, desc=f"[{index}] {name}", unit="cluster",
-                                leave=False, file=sys.stderr)
+                self.bar = tqdm(total=total, desc=f"[{index}] {name}", leave=False,
+                                file=sys.stderr, dynamic_ncols=True)
             else:
                 print(f"[{index}] {name} ...", file=sys.stderr, flush=True)
 
-    def update(self, count: int = 1) -> None:
+    def update(self, count: int = 1, **figures: float) -> None:
+        self.count += count
+        shown = {k: f"{v:.4g}" for k, v in figures.items()}
         if self.bar is not None:
+            if shown:
+                self.bar.set_postfix(shown, refresh=False)
             self.bar.update(count)
+        elif self.enabled and self.total and self._log_due(count):
+            elapsed = time.perf_counter() - self.start
+            rate = self.count / elapsed if elapsed > 0 else 0.0
+            eta = (self.total - self.count) / rate if rate > 0 else float("nan")
+            extra = "".join(f", {k} {v}" for k, v in shown.items())
+            print(f"[{self.index}] {self.name} {self.count}/{self.total}{extra}, "
+                  f"{rate:.2f} it/s, ETA {_clock(eta)}", file=sys.stderr, flush=True)
+
+    def _log_due(self, count: int) -> bool:
+        step = max(1, self.total // _LOG_STEPS)
+        return self.count // step != (self.count - count) // step or self.count == self.total
 
     def done(self, summary: str = "") -> None:
         if self.bar is not None:
@@ -32,6 +56,14 @@ class _PrintedStage(Stage):
             elapsed = time.perf_counter() - self.start
             print(f"[{self.index}] {self.name}: {summary} ({elapsed:.1f} s)", file=sys.stderr,
                   flush=True)
+
+
+def _clock(seconds: float) -> str:
+    if seconds != seconds:  # NaN
+        return "?"
+    minutes, secs = divmod(int(round(seconds)), 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"
 
 
 class StageReporter:
@@ -43,8 +75,6 @@ class StageReporter:
     def stage(self, name: str, total: int | None) -> Stage:
         self.count += 1
         return _PrintedStage(name, total, self.count, self.enabled)
-
-
 def print_summary(stats: dict) -> None:
     """The human summary of an encode: counts, bytes per section, ratios, sketch errors."""
     n, size = stats["gaussians"], stats["bytes"]
@@ -69,6 +99,26 @@ def print_summary(stats: dict) -> None:
         for key, (label, factor) in labels.items():
             v = err[key]
             print(f"    {label:<24} {v['mean'] * factor:.4g} / {v['p95'] * factor:.4g}")
+    rate = stats.get("rate")
+    if rate:
+        actual = stats["bytes"]
+        print(f"  target {rate['target_bytes']:,} bytes: predicted {rate['predicted_bytes']:,}, "
+              f"actual {actual:,} ({100 * (actual / rate['target_bytes'] - 1):+.1f} %)"
+              + (", corrected once after the finish" if rate.get("corrected") else ""))
+        if rate.get("note"):
+            print(f"  note: {rate['note']}")
+    retrain = stats.get("retrain")
+    if retrain:
+        print(f"  retrain ({retrain['prune']} pruning) on the training views: "
+              f"{retrain['psnr_before']:.2f} dB before, {retrain['psnr_retrained']:.2f} dB "
+              f"retrained, {retrain['psnr_quantized']:.2f} dB quantized"
+              + (f", {retrain['psnr_finished']:.2f} dB after the finish"
+                 if "psnr_finished" in retrain else ""))
+    quality = stats.get("quality")
+    if quality:
+        print(f"  quality: PSNR {quality['psnr']:.2f} dB, SSIM {quality['ssim']:.4f} against "
+              f"{quality['against']} ({quality['views']} views of {quality['width']}x"
+              f"{quality['height']}; `spcodec eval` reports the same)")
     total = sum(stats["seconds"].values())
     print("  time: " + ", ".join(f"{k} {v:.1f} s" for k, v in stats["seconds"].items())
           + f" (total {total:.1f} s)")

@@ -9,20 +9,65 @@ extra to install when they are missing.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import math
 import os
+import signal
 import sys
+import threading
 import time
+import warnings
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable, NoReturn, Sequence
 
-from .errors import FormatError, SpcodecError, UsageError
+from .errors import FormatError, Interrupted, SpcodecError, TruncatedError, UsageError
+from .limits import DEFAULT_LIMITS
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE = 0, 1, 2
 
 Handler = Callable[[argparse.Namespace], int]
 Configure = Callable[[argparse.ArgumentParser], None]
 COMMANDS: dict[str, tuple[str, Configure, Handler]] = {}
+
+
+class Bounded:
+    """An argparse ``type``: a number within a range, checked while the command line is parsed
+    (before any work starts) and shown by ``--help`` through ``%(type)s``."""
+
+    def __init__(self, kind: type = int, low: float = 1, high: float | None = None,
+                 exclusive: bool = False) -> None:
+        self.kind, self.low, self.high, self.exclusive = kind, low, high, exclusive
+
+    def __call__(self, text: str) -> int | float:
+        try:
+            value = self.kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {self}, got {text!r}") from None
+        above = value > self.low if self.exclusive else value >= self.low
+        if not (math.isfinite(value) and above and (self.high is None or value <= self.high)):
+            raise argparse.ArgumentTypeError(f"must be {self}, got {text}")
+        return value
+
+    def __str__(self) -> str:
+        noun = "an integer" if self.kind is int else "a number"
+        if self.high is not None:
+            return f"{noun} in {self.low}..{self.high}"
+        return f"{noun} {'>' if self.exclusive else '>='} {self.low}"
+
+
+SEED = Bounded(int, 0, 2**32 - 1)
+"""Seeds of numpy and scikit-learn: non-negative and below 2**32."""
+MAX_LAYER = Bounded(int, 0)
+PORT = Bounded(int, 0, 65535)
+THROTTLE = Bounded(float, 0, exclusive=True)
+"""``serve --throttle`` in kbit/s: any positive speed."""
+PATCH_LAYERS_DEFAULT = 3
+"""``PatchConfig.layers``, for --help without importing the encoder; a test keeps them equal."""
+RETRAIN_DEFAULTS = {"iterations": 3000, "finish_iterations": 600, "views": 48, "resolution": 400}
+"""``RetrainConfig`` defaults shown by --help (the same test keeps them equal)."""
+MAX_TURNTABLE = 64
+"""Views in a turntable contact sheet (64 views of 400 pixels make a 3,200-pixel square)."""
 
 
 def command(name: str, help_text: str, configure: Configure):
@@ -39,8 +84,9 @@ def _add_decode(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True,
                    help="the file to write: a 3DGS PLY (INRIA layout), or with a .glb name a "
                    "binary glTF with KHR_gaussian_splatting")
-    p.add_argument("--max-layer", type=int, default=None,
-                   help="decode layers 0..K only (0 = the sketch layer alone)")
+    p.add_argument("--max-layer", type=MAX_LAYER, default=None, metavar="K",
+                   help="decode layers 0..K only (0 = the sketch layer alone); %(type)s "
+                   "(default: every layer)")
 
 
 @command("decode", "decode an .spc file into a 3DGS PLY or a glTF (.glb)", _add_decode)
@@ -68,7 +114,7 @@ def cmd_decode(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------------- info
 def _add_info(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", help="an .spc file")
-    p.add_argument("--json", action="store_true", help="print a JSON document")
+    p.add_argument("--json", action="store_true", help="print a JSON document (default: text)")
 
 
 @command("info", "describe an .spc file: version, layers, sections and their byte ranges",
@@ -83,10 +129,16 @@ def cmd_info(args: argparse.Namespace) -> int:
     print(f"{args.input}: spcodec bitstream v{doc['version']}, {doc['gaussians']} Gaussians, "
           f"SH degree {doc['sh_degree']}, {doc['stored_size']} bytes"
           f"{' (gzip-wrapped)' if doc['gzip'] else ''}")
+    if doc["complete_layers"] < len(doc["layers"]):
+        print(_partial_file_note(doc))
     print("layers:")
     for layer in doc["layers"]:
+        end = layer["end_offset"] if layer["end_offset"] is not None else \
+            f"{layer['inner_end_offset']} of the inflated file"
+        state = f"complete at byte {end}" if layer["complete"] else \
+            f"INCOMPLETE (needs the bytes up to {end})"
         print(f"  L{layer['index']:<3} {layer['kind']:<7} {layer['gaussians']:>10} Gaussians, "
-              f"complete at byte {layer['end_offset']}")
+              f"{state}")
     print("sections:")
     for s in doc["sections"]:
         print(f"  #{s['index']:<3} L{s['layer']:<3} {s['type']:<20} {s['codec']:<5} "
@@ -96,17 +148,31 @@ def cmd_info(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _partial_file_note(doc: dict) -> str:
+    """What ``info`` says of a file that holds only some of its layers."""
+    k, have, size = doc["complete_layers"], doc["available_bytes"], doc["file_size"]
+    where = f"after {have} of its {size} bytes{' (inflated)' if doc['gzip'] else ''}"
+    whole = f"layers 0..{k - 1} are complete" if k else "no layer is complete"
+    if not doc["truncated"]:
+        return f"PREFIX: the data ends at a layer boundary, {where}; {whole} and decode"
+    hint = f" (decode them with --max-layer {k - 1})" if k else ""
+    return f"TRUNCATED: the data ends inside layer {k}, {where}; {whole}{hint}"
+
+
 # ---------------------------------------------------------------------------------- serve
 def _add_serve(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", help="the scene to show at /: an .spc (streamed layer by layer), or a "
                    ".ply or .glb (loaded whole, for comparison)")
-    p.add_argument("--port", type=int, default=8000, help="TCP port (default 8000; 0 = any free)")
+    p.add_argument("--port", type=PORT, default=8000,
+                   help="TCP port: %(type)s (default: %(default)s; 0 = any free port)")
     p.add_argument("--host", default="127.0.0.1",
                    help="address to bind (default 127.0.0.1: this machine only)")
-    p.add_argument("--throttle", type=float, metavar="KBPS", default=None,
-                   help="send the scene at this many kilobits per second (e.g. 20000 for "
-                   "20 Mbit/s), to watch layers arrive as on a slow connection")
-    p.add_argument("--log", action="store_true", help="log every request on stderr")
+    p.add_argument("--throttle", type=THROTTLE, metavar="KBPS", default=None,
+                   help="send the scene at this many kilobits per second, %(type)s (e.g. 20000 "
+                   "for 20 Mbit/s), to watch layers arrive as on a slow connection (default: "
+                   "no limit)")
+    p.add_argument("--log", action="store_true",
+                   help="log every request on stderr (default: quiet)")
 
 
 @command("serve", "serve the streaming web viewer and an .spc (with HTTP range requests)",
@@ -138,8 +204,10 @@ def cmd_serve(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------------- demo
 def _add_demo(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output-dir", default="spcodec-demo",
-                   help="folder for demo.spc and demo.ply (created if missing)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the built-in scene")
+                   help="folder for demo.spc and demo.ply, created if missing (default: "
+                   "%(default)s)")
+    p.add_argument("--seed", type=SEED, default=0,
+                   help="seed of the built-in scene: %(type)s (default: %(default)s)")
 
 
 @command("demo", "run the pipeline on a built-in synthetic scene and write demo.spc/demo.ply",
@@ -155,23 +223,26 @@ def _add_conformance(p: argparse.ArgumentParser) -> None:
     p.add_argument("--decoder", metavar="'CMD {input} {output}'",
                    help="judge this command line instead of the in-process decoder: it must write "
                         "an INRIA PLY to {output} and exit 0, or exit non-zero, write nothing and "
-                        "print [error-code] on stderr (conformance/README.md)")
+                        "print [error-code] on stderr (conformance/README.md) (default: the "
+                        "in-process decoder)")
     p.add_argument("--max-layer-arg", metavar="'--max-layer {k}'",
                    help="what to append to --decoder for a decode of layers 0..k (without it, "
-                        "those decodes are not run)")
-    p.add_argument("--json", action="store_true", help="print the results as one JSON document")
+                        "those decodes are not run) (default: none)")
+    p.add_argument("--json", action="store_true", help="print the results as one JSON document (default: "
+                   "a table)")
     p.add_argument("--only", nargs="+", metavar="PATTERN",
-                   help="run only the vectors whose id matches a shell-style pattern")
+                   help="run only the vectors whose id matches a shell-style pattern (default: "
+                   "every vector)")
     p.add_argument("--without-zstd", action="store_true",
                    help="the decoder has no zstd support: decodes that need it expect "
-                        "codec-unavailable")
-    p.add_argument("--timeout", type=float, default=None, metavar="S",
-                   help="seconds an external decode may take (default: 60)")
+                        "codec-unavailable (default: off)")
+    p.add_argument("--timeout", type=Bounded(float, 0, exclusive=True), default=None, metavar="S",
+                   help="seconds an external decode may take: %(type)s (default: 60)")
     p.add_argument("--suite", metavar="DIR", help="the suite to run (default: the one installed "
                    "with spcodec)")
     p.add_argument("--generate", metavar="DIR",
                    help="instead of running, regenerate every vector and the manifest into DIR "
-                        "(e.g. conformance/ in the repository)")
+                        "(e.g. conformance/ in the repository) (default: off)")
 
 
 @command("conformance", "check a decoder against the conformance vectors (or regenerate them)",
@@ -186,57 +257,184 @@ def cmd_conformance(args: argparse.Namespace) -> int:
 def _add_encode(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", help="a trained 3DGS scene (.ply, INRIA layout or compressed.ply)")
     p.add_argument("-o", "--output", required=True, help="the .spc file to write")
-    p.add_argument("--no-retrain", action="store_true",
-                   help="encode without retraining the patch Gaussians (required in this version)")
     p.add_argument("--preset", choices=["lowrate", "balanced", "highrate"], default="balanced",
-                   help="rate/quality operating point (default: balanced)")
+                   help="rate/quality operating point: codebooks, sketch threshold and patch "
+                   "downsample (default: %(default)s)")
     p.add_argument("--codec", choices=["zlib", "zstd"], default="zlib",
-                   help="section codec (zlib: every decoder reads it; zstd: faster to decode)")
-    p.add_argument("--gzip", action="store_true", help="wrap the file in gzip")
-    p.add_argument("--no-sketch", action="store_true", help="encode every Gaussian as patch")
-    p.add_argument("--patch-layers", type=int, default=None, help="number of patch layers")
-    p.add_argument("--tau-max", type=float, default=None,
-                   help="polynomial-model error threshold of sketch clusters (unitless)")
-    p.add_argument("--seed", type=int, default=0, help="seed of every random choice")
-    p.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
-    p.add_argument("--stats", metavar="FILE", help="also write the encode statistics as JSON")
-    p.add_argument("--quiet", action="store_true", help="no progress display")
+                   help="section codec; zlib: every decoder reads it, zstd: faster to decode "
+                   "(default: %(default)s)")
+    p.add_argument("--gzip", action="store_true", help="wrap the file in gzip (default: off)")
+    p.add_argument("--no-sketch", action="store_true",
+                   help="encode every Gaussian as patch (default: off)")
+    p.add_argument("--patch-layers", type=Bounded(int, 1, DEFAULT_LIMITS.max_layers - 1),
+                   default=None, metavar="N",
+                   help=f"number of patch layers: %(type)s (default: {PATCH_LAYERS_DEFAULT})")
+    p.add_argument("--tau-max", type=Bounded(float, 0, exclusive=True), default=None,
+                   metavar="TAU", help="polynomial-model error threshold of sketch clusters "
+                   "(unitless): %(type)s (default: set by --preset)")
+    p.add_argument("--seed", type=SEED, default=0,
+                   help="seed of every random choice: %(type)s (default: %(default)s)")
+    p.add_argument("--jobs", type=Bounded(int, 1), default=None, metavar="N",
+                   help="worker processes: %(type)s (default: all cores)")
+    p.add_argument("--stats", metavar="FILE",
+                   help="also write the encode statistics as JSON (default: none)")
+    p.add_argument("--quiet", action="store_true", help="no progress display (default: off)")
+
+    size = p.add_argument_group("size")
+    size.add_argument("--target-size", metavar="SIZE",
+                      help="aim the file at SIZE bytes, within 5%%: 150k, 2MB, 300000 (k, M "
+                      "decimal; KiB, MiB binary); sets how many patch Gaussians survive pruning "
+                      "(default: none, the preset's downsample)")
+    size.add_argument("--patch-downsample", type=Bounded(float, 1), metavar="N",
+                      help="keep 1/N of the patch Gaussians: %(type)s (default: set by --preset: "
+                      "lowrate 8, balanced 4, highrate 2)")
+    size.add_argument("--prune", choices=["importance", "uniform"], default=None,
+                      help="which patch Gaussians survive: the largest blend weight over the "
+                      "training views, or uniformly at random as in the paper (default: "
+                      "importance)")
+
+    train = p.add_argument_group("retraining")
+    train.add_argument("--no-retrain", action="store_true",
+                       help="skip retraining: code the patch as it is; seconds instead of "
+                       "minutes, larger files (default: off)")
+    train.add_argument("--dataset", metavar="DIR", help="retrain against this dataset's training "
+                       "images (COLMAP, transforms.json or LLFF; its test split is held out) "
+                       "(default: renders of the input at sampled views, i.e. distillation)")
+    train.add_argument("--downscale", type=Bounded(int, 1), default=1, metavar="N",
+                       help="dataset image downscale factor: %(type)s (default: %(default)s)")
+    train.add_argument("--iterations", type=Bounded(int, 0), default=None, metavar="N",
+                       help="retraining steps, one view each: %(type)s (default: "
+                       f"{RETRAIN_DEFAULTS['iterations']})")
+    train.add_argument("--finish-iterations", type=Bounded(int, 0), default=None, metavar="N",
+                       help="steps of the quantization-aware finish, 0 = off: %(type)s (default: "
+                       f"{RETRAIN_DEFAULTS['finish_iterations']})")
+    train.add_argument("--views", type=Bounded(int, 1, 10000), default=None, metavar="N",
+                       help="distillation: training views sampled around the input: %(type)s "
+                       f"(default: {RETRAIN_DEFAULTS['views']})")
+    train.add_argument("--resolution", type=Bounded(int, 8, 8192), default=None, metavar="PIXELS",
+                       help="distillation: side of the square training views: %(type)s "
+                       f"(default: {RETRAIN_DEFAULTS['resolution']})")
+    train.add_argument("--up", default="-y", choices=["+x", "-x", "+y", "-y", "+z", "-z"],
+                       metavar="AXIS", help="the scene's up axis for sampled views, one of "
+                       "+x -x +y -y +z -z, as for eval (default: %(default)s)")
+    train.add_argument("--antialiased", action="store_true",
+                       help="render with Mip-Splatting's antialiased opacity (default: off)")
+    train.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
+                       help="auto: CUDA with gsplat when available, else the CPU (default: "
+                       "%(default)s)")
+    train.add_argument("--threads", type=Bounded(int, 1, 1024), default=None, metavar="N",
+                       help="CPU threads for training: %(type)s (default: torch's choice)")
+    train.add_argument("--checkpoint-every", type=Bounded(int, 0), default=500, metavar="N",
+                       help="rewrite the checkpoint OUTPUT.ckpt every N steps, 0 = only when "
+                       "interrupted: %(type)s (default: %(default)s)")
+    train.add_argument("--resume", action="store_true",
+                       help="continue an interrupted encode from OUTPUT.ckpt; give the same "
+                       "arguments (default: off)")
 
 
 @command("encode", "encode a 3DGS PLY into an .spc bitstream", _add_encode)
 def cmd_encode(args: argparse.Namespace) -> int:
-    import dataclasses
-
-    from .encoder.pipeline import EncoderConfig, encode
-    from .encoder.presets import preset_config
+    from .encoder.pipeline import encode
     from .encoder.progress import StageReporter, print_summary
     from .fileio import atomic_write, check_writable
     from .ply import read_ply
 
-    if not args.no_retrain:
-        raise UsageError("retraining is not available in this version: pass --no-retrain")
     check_writable(args.output)
     if args.stats:
         check_writable(args.stats)
-    config = preset_config(args.preset, EncoderConfig(
-        seed=args.seed, n_jobs=args.jobs, use_sketch=not args.no_sketch, codec=args.codec,
-        gzip=args.gzip))
-    if args.patch_layers is not None:
-        _check_positive(patch_layers=args.patch_layers)
-        config.patch = dataclasses.replace(config.patch, layers=args.patch_layers)
-    if args.tau_max is not None:
-        if not args.tau_max > 0:
-            raise UsageError(f"--tau-max must be positive, got {args.tau_max}")
-        config.refine = dataclasses.replace(config.refine, tau_max=args.tau_max)
+    config = encode_config(args)
+    control = run_control(args) if config.retrain is not None else None
     cloud = read_ply(args.input)
     reporter = StageReporter(enabled=not args.quiet)
-    result = encode(cloud, config, progress=reporter.stage, source_name=Path(args.input).name)
+    with _stop_on_ctrl_c(control):
+        result = encode(cloud, config, progress=reporter.stage, source_name=Path(args.input).name,
+                        dataset=args.dataset, control=control)
     atomic_write(args.output, result.data)
     stats = dict(result.stats, input_bytes=os.path.getsize(args.input), output=str(args.output))
     if args.stats:
         atomic_write(args.stats, (json.dumps(stats, indent=2) + "\n").encode())
     print_summary(stats)
     return EXIT_OK
+
+
+def encode_config(args: argparse.Namespace):
+    """The EncoderConfig the encode options describe (checked, with one-line errors)."""
+    import dataclasses
+
+    from .encoder.pipeline import EncoderConfig
+    from .encoder.presets import preset_config
+    from .encoder.ratecontrol import parse_size
+
+    retrain = not args.no_retrain
+    if not retrain:
+        given = [f"--{n.replace('_', '-')}" for n in ("dataset", "iterations", "finish_iterations",
+                                                      "views", "resolution", "resume")
+                 if getattr(args, n) not in (None, False)]
+        if given:
+            raise UsageError(f"{', '.join(given)} only apply to retraining: drop --no-retrain or "
+                             "them")
+    if args.target_size is not None and args.patch_downsample is not None:
+        raise UsageError("--target-size chooses the downsample itself: give one of "
+                         "--target-size and --patch-downsample")
+    config = preset_config(args.preset, EncoderConfig(
+        seed=args.seed, n_jobs=args.jobs, use_sketch=not args.no_sketch, codec=args.codec,
+        gzip=args.gzip), retrain=retrain)
+    if args.target_size is not None:
+        config.target_size = parse_size(args.target_size)
+    if args.patch_layers is not None:
+        config.patch = dataclasses.replace(config.patch, layers=args.patch_layers)
+    if args.tau_max is not None:
+        config.refine = dataclasses.replace(config.refine, tau_max=args.tau_max)
+    if retrain:
+        changes = {"up": args.up, "antialiased": args.antialiased, "downscale": args.downscale}
+        for name in ("patch_downsample", "prune", "iterations", "finish_iterations", "views",
+                     "resolution"):
+            if getattr(args, name) is not None:
+                changes[name] = getattr(args, name)
+        config.retrain = dataclasses.replace(config.retrain, **changes)
+    elif args.patch_downsample is not None or args.prune is not None:
+        raise UsageError("--patch-downsample and --prune need retraining (without it, give "
+                         "--target-size to prune by importance)")
+    return config
+
+
+def run_control(args: argparse.Namespace):
+    """Device, threads, checkpoint and the resume hint of a retraining encode."""
+    import shlex
+
+    from .encoder.retrain import RunControl
+    from .encoder.training.checkpoint import checkpoint_path
+
+    if args.threads is not None:
+        import torch
+        torch.set_num_threads(args.threads)
+    argv = [a for a in sys.argv[1:] if a != "--resume"] + ["--resume"]
+    return RunControl(device=args.device, checkpoint=checkpoint_path(args.output),
+                      checkpoint_every=args.checkpoint_every, resume=args.resume,
+                      resume_hint="spcodec " + shlex.join(argv))
+
+
+@contextlib.contextmanager
+def _stop_on_ctrl_c(control):
+    """While training, the first Ctrl-C asks the loop to stop after its current step (it then
+    writes a checkpoint); outside training, or on a second Ctrl-C, it interrupts at once."""
+    if control is None or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        if control.stoppable and not control.stop.is_set():
+            control.stop.set()
+            print("\nstopping after this step and saving a checkpoint (Ctrl-C again to abort)",
+                  file=sys.stderr, flush=True)
+        else:
+            raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 # ---------------------------------------------------------------------------- eval, render
@@ -252,32 +450,46 @@ def load_model(path: str, max_layer: int | None = None):
         return decode(path, max_layer=max_layer)
     if max_layer is not None:
         raise UsageError(f"--max-layer needs an .spc input; {path} is not one")
-    return read_ply(path)
+    cloud = read_ply(path)
+    try:
+        cloud.check_finite()  # what encode refuses, render and eval refuse too
+    except FormatError as exc:
+        raise FormatError(f"{path}: {exc.args[0]}", exc.code) from None
+    return cloud
 
 
 def _add_view_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--resolution", type=int, default=400, help="side of square views (pixels)")
-    p.add_argument("--max-layer", type=int, default=None, help="use layers 0..K of an .spc")
+    p.add_argument("--resolution", type=Bounded(int, 8, 8192), default=400, metavar="PIXELS",
+                   help="side of square sampled views: %(type)s (default: %(default)s)")
+    p.add_argument("--max-layer", type=MAX_LAYER, default=None, metavar="K",
+                   help="use layers 0..K of an .spc: %(type)s (default: every layer)")
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
-                   help="auto: gsplat on CUDA when available, else the CPU renderer")
-    p.add_argument("--up", default="-y", help="the scene's up axis for sampled views "
-                   "(-y suits COLMAP-derived scenes; e.g. +z for z-up scenes)")
+                   help="auto: gsplat on CUDA when available, else the CPU renderer (default: "
+                   "%(default)s)")
+    p.add_argument("--up", default="-y", choices=["+x", "-x", "+y", "-y", "+z", "-z"],
+                   metavar="AXIS", help="the scene's up axis for sampled views, one of "
+                   "+x -x +y -y +z -z; -y suits COLMAP-derived scenes, +z z-up ones; write "
+                   "a negative axis as --up=-y (default: %(default)s)")
     p.add_argument("--antialiased", action="store_true",
-                   help="render with Mip-Splatting's antialiased opacity")
+                   help="render with Mip-Splatting's antialiased opacity (default: off)")
 
 
 def _add_eval(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", help="the model to judge: an .spc or any 3DGS .ply")
     ref = p.add_mutually_exclusive_group(required=True)
     ref.add_argument("--dataset", help="a dataset folder (COLMAP, transforms.json or LLFF): "
-                     "compare with its test images")
+                     "compare with its test images (required: this or --reference)")
     ref.add_argument("--reference", help="the original model (.ply or .spc): compare renders at "
-                     "held-out sampled views")
-    p.add_argument("--json", action="store_true", help="print a JSON document")
-    p.add_argument("--views", type=int, default=8, help="sampled views (with --reference)")
-    p.add_argument("--downscale", type=int, default=1, help="dataset image downscale factor")
+                     "held-out sampled views (required: this or --dataset)")
+    p.add_argument("--json", action="store_true", help="print a JSON document (default: text)")
+    p.add_argument("--views", type=Bounded(int, 1), default=8, metavar="N",
+                   help="sampled views, with --reference: %(type)s (default: %(default)s)")
+    p.add_argument("--downscale", type=Bounded(int, 1), default=1, metavar="F",
+                   help="divide dataset images by F, with --dataset: %(type)s (default: "
+                   "%(default)s)")
     p.add_argument("--save-renders", metavar="DIR",
-                   help="write 'reference | ours | error' PNGs into DIR")
+                   help="write 'reference | ours | error' PNGs into DIR, created if missing "
+                   "(default: none)")
     _add_view_options(p)
 
 
@@ -289,11 +501,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
         evaluate_against_dataset,
         evaluate_against_reference,
     )
+    from .fileio import check_writable_folder
 
-    _check_positive(views=args.views, resolution=args.resolution, downscale=args.downscale)
-    save = Path(args.save_renders) if args.save_renders else None
-    if save is not None:
-        save.mkdir(parents=True, exist_ok=True)
+    save = check_writable_folder(args.save_renders) if args.save_renders else None
     config = EvalConfig(views=args.views, resolution=args.resolution, downscale=args.downscale,
                         device=args.device, up=args.up, antialiased=args.antialiased,
                         save_renders=save)
@@ -315,10 +525,17 @@ def cmd_eval(args: argparse.Namespace) -> int:
 def _add_render(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", help="an .spc or any 3DGS .ply")
     p.add_argument("-o", "--output", required=True, help="the PNG to write")
-    p.add_argument("--view", type=int, default=0, help="which sampled view (0-based)")
-    p.add_argument("--turntable", type=int, metavar="N",
-                   help="write a contact sheet of N views around the scene instead")
-    p.add_argument("--background", default="0,0,0", help="r,g,b in [0, 1]")
+    p.add_argument("--view", type=Bounded(int, 0), default=0, metavar="K",
+                   help="which of the --views sampled views, the same cameras as 'eval "
+                   "--views N': an integer in 0..N-1 (default: %(default)s)")
+    p.add_argument("--views", type=Bounded(int, 1), default=8, metavar="N",
+                   help="size of the view set --view picks from: %(type)s (default: "
+                   "%(default)s, as in eval)")
+    p.add_argument("--turntable", type=Bounded(int, 1, MAX_TURNTABLE), metavar="N",
+                   help="write a contact sheet of N views around the scene instead: %(type)s "
+                   "(default: one view)")
+    p.add_argument("--background", default="0,0,0",
+                   help="r,g,b, each in [0, 1] (default: %(default)s)")
     _add_view_options(p)
 
 
@@ -330,14 +547,15 @@ def cmd_render(args: argparse.Namespace) -> int:
     from .encoder.views import sample_views
     from .fileio import check_writable
 
+    if args.turntable is None and args.view >= args.views:
+        raise UsageError(f"--view must be in 0..{args.views - 1} (the --views {args.views} "
+                         f"sampled views), got {args.view}")
     check_writable(args.output)
-    _check_positive(resolution=args.resolution)
     background = _parse_colour(args.background)
     cloud = load_model(args.input, args.max_layer)
     if len(cloud) == 0:
         raise UsageError(f"{args.input} holds no Gaussians to render")
-    count = args.turntable if args.turntable else args.view + 1
-    _check_positive(turntable=count)
+    count = args.turntable if args.turntable else args.views
     cameras = sample_views(cloud, count, resolution=(args.resolution, args.resolution),
                            split="eval", up=args.up)
     settings = RenderSettings(background=background, antialiased=args.antialiased)
@@ -351,12 +569,6 @@ def cmd_render(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _check_positive(**values: int) -> None:
-    for name, value in values.items():
-        if value is not None and value < 1:
-            raise UsageError(f"--{name.replace('_', '-')} must be at least 1, got {value}")
-
-
 def _parse_colour(text: str) -> tuple[float, float, float]:
     try:
         values = tuple(float(v) for v in text.split(","))
@@ -368,14 +580,23 @@ def _parse_colour(text: str) -> tuple[float, float, float]:
 
 
 # ----------------------------------------------------------------------------------- main
+class _Parser(argparse.ArgumentParser):
+    """argparse with the command line's one-line errors instead of a usage dump."""
+
+    def error(self, message: str) -> NoReturn:
+        _fail(f"{message} (see '{self.prog} --help')")
+        raise SystemExit(EXIT_USAGE)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with every registered sub-command."""
     from . import __version__
 
-    parser = argparse.ArgumentParser(prog="spcodec", description="Sketch&Patch++ codec for 3D "
-                                     "Gaussian Splatting scenes")
+    parser = _Parser(prog="spcodec", description="Sketch&Patch++ codec for 3D "
+                     "Gaussian Splatting scenes")
     parser.add_argument("--version", action="version", version=f"spcodec {__version__}")
-    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    parser.add_argument("--debug", action="store_true",
+                        help="show tracebacks on errors (default: off)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name, (help_text, configure, handler) in COMMANDS.items():
@@ -388,11 +609,19 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``spcodec`` console script."""
     parser = build_parser()
-    args = parser.parse_args(argv)
     try:
-        return int(args.handler(args) or EXIT_OK)
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version, or a bad argument already reported
+        return exc.code if isinstance(exc.code, int) else EXIT_USAGE
+    try:
+        with warnings.catch_warnings():
+            warnings.showwarning = _warn
+            return int(args.handler(args) or EXIT_OK)
     except KeyboardInterrupt:
         _fail("interrupted")
+        return 130
+    except Interrupted as exc:
+        _fail(str(exc))
         return 130
     except Exception as exc:  # noqa: BLE001 - the one place that turns errors into one line
         if args.debug:
@@ -405,7 +634,11 @@ def describe_error(exc: BaseException, args: argparse.Namespace | None = None) -
     """The one-line message for an exception reaching the command line."""
     source = getattr(args, "input", None)
     if isinstance(exc, FormatError):
-        return f"{source}: {exc}" if source and str(source) not in str(exc) else str(exc)
+        message = f"{source}: {exc}" if source and str(source) not in str(exc) else str(exc)
+        if isinstance(exc, TruncatedError) and exc.complete_layers:
+            last = exc.complete_layers - 1
+            message += f"; decode layers 0..{last} with --max-layer {last}"
+        return message
     if isinstance(exc, SpcodecError):
         return str(exc)
     if isinstance(exc, FileNotFoundError):
@@ -435,6 +668,12 @@ def missing_extra_message(module: str) -> str:
 def _fail(message: str) -> None:
     first = message.strip().splitlines()[0] if message.strip() else "failed"
     print(f"spcodec: error: {first}", file=sys.stderr)
+
+
+def _warn(message, category, filename, lineno, file=None, line=None) -> None:
+    """``warnings.showwarning`` for the command line: one line, no source location."""
+    text = str(message).strip().splitlines()
+    print(f"spcodec: warning: {text[0] if text else category.__name__}", file=sys.stderr)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -148,6 +148,20 @@ class GaussianCloud:
         """True when no parameter is NaN or infinite."""
         return all(np.isfinite(a).all() for a in self.arrays().values())
 
+    def check_finite(self) -> None:
+        """Refuse NaN or infinite parameters with one line (``ply-invalid``).
+
+        The one check that ``encode``, ``render`` and ``eval`` share: the encoder cannot code
+        such values and a renderer would draw garbage (or nothing) without a word, so a scene
+        holding them is refused everywhere rather than judged in one place and coded in none.
+        """
+        for name, array in self.arrays().items():
+            bad = ~np.isfinite(array)
+            if bad.any():
+                rows = np.unique(np.nonzero(bad)[0])
+                raise FormatError(f"{len(rows)} Gaussians have NaN or infinite {name} (first: "
+                                  f"#{rows[0]}); remove them from the scene first", "ply-invalid")
+
     def equals(self, other: "GaussianCloud") -> bool:
         """Bit-exact equality of every array (NaNs compare by bit pattern)."""
         if len(self) != len(other) or self.sh_degree != other.sh_degree:

@@ -21,6 +21,11 @@ class UsageError(SpcodecError, ValueError):
     """A caller asked for something that cannot be done (bad option, unwritable path...)."""
 
 
+class Interrupted(SpcodecError):
+    """A long job (a retraining encode) stopped on request after saving what it needs to
+    continue; the message says how to resume."""
+
+
 class FormatError(SpcodecError, ValueError):
     """An input file (bitstream or PLY) is malformed, unsupported or exceeds a limit.
 
@@ -41,6 +46,13 @@ class TruncatedError(FormatError):
     """The data ends before a structure it declares is complete."""
 
     default_code = "truncated"
+
+    def __init__(self, message: str, code: str | None = None,
+                 complete_layers: int | None = None) -> None:
+        super().__init__(message, code)
+        #: How many leading layers the data holds whole (None: not known). When positive, they
+        #: decode with ``max_layer=complete_layers - 1``, which a tool can suggest.
+        self.complete_layers = complete_layers
 
 
 class ChecksumError(FormatError):

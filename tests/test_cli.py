@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -94,3 +96,231 @@ def test_encoder_api_is_reachable_without_loading_heavy_modules_eagerly():
             "from spcodec.encoder import encode, EncoderConfig; assert callable(encode)")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
+
+
+# ------------------------------------------------------------------- outputs that cannot be written
+def one_line_error(err: str) -> bool:
+    return err.count("\n") == 1 and err.startswith("spcodec: error:") and "Traceback" not in err
+
+
+def _forbid_work(monkeypatch) -> None:
+    """Make every command's real work fail loudly, so an error proves it came first."""
+    import spcodec.cli
+    import spcodec.decoder
+    import spcodec.ply
+
+    def started(*args, **kwargs):
+        raise AssertionError("the work started before the output was checked")
+
+    monkeypatch.setattr(spcodec.decoder, "decode_layers", started)
+    monkeypatch.setattr(spcodec.ply, "read_ply", started)
+    monkeypatch.setattr(spcodec.cli, "load_model", started)
+
+
+@pytest.mark.parametrize("argv, named", [
+    (["decode", "{spc}", "-o", "/proc/x.ply"], "/proc/x.ply"),
+    (["encode", "{ply}", "-o", "/proc/x.spc", "--no-retrain"], "/proc/x.spc"),
+    (["encode", "{ply}", "-o", "{tmp}/x.spc", "--no-retrain", "--stats", "/proc/s.json"],
+     "/proc/s.json"),
+    (["render", "{ply}", "-o", "/proc/x.png"], "/proc/x.png"),
+    (["eval", "{ply}", "--reference", "{ply}", "--save-renders", "/proc/renders"],
+     "/proc/renders"),
+])
+def test_an_unwritable_output_fails_before_the_work_naming_the_users_path(
+        capsys, tmp_path, monkeypatch, small_file, argv, named):
+    """/proc refuses new files even to root, whom os.access lets through: only trying tells."""
+    if not Path("/proc/self").is_dir():
+        pytest.skip("needs Linux's /proc")  # pragma: no cover
+    (tmp_path / "s.spc").write_bytes(small_file)
+    spcodec.write_ply(tmp_path / "s.ply", spcodec.decode(small_file))
+    _forbid_work(monkeypatch)
+    code, out, err = run(capsys, *[a.format(spc=tmp_path / "s.spc", ply=tmp_path / "s.ply",
+                                            tmp=tmp_path) for a in argv])
+    assert code == 2 and one_line_error(err), err
+    assert f"cannot write {named}" in err and ".part" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.ply", "s.spc"]
+
+
+def test_a_failure_while_writing_names_the_users_path_and_leaves_nothing(tmp_path, monkeypatch):
+    import errno
+
+    from spcodec.fileio import atomic_write
+
+    def full_disk(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr("os.fsync", full_disk)
+    with pytest.raises(OSError) as caught:
+        atomic_write(tmp_path / "out.spc", b"data")
+    assert caught.value.filename == str(tmp_path / "out.spc")
+    assert caught.value.errno == errno.ENOSPC
+    from spcodec.cli import describe_error
+    assert describe_error(caught.value) == f"{tmp_path / 'out.spc'}: No space left on device"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_check_writable_folder_creates_nothing(tmp_path):
+    from spcodec.fileio import check_writable_folder
+
+    assert check_writable_folder(tmp_path / "a" / "b") == tmp_path / "a" / "b"
+    assert list(tmp_path.iterdir()) == []
+    (tmp_path / "file").write_bytes(b"")
+    with pytest.raises(spcodec.UsageError, match="not a folder"):
+        check_writable_folder(tmp_path / "file" / "renders")
+
+
+# ----------------------------------------------------------------------------- truncated files
+def _cut(small_file: bytes, gzip: bool = False) -> tuple[bytes, list[int]]:
+    """The file (gzip-wrapped when asked) and its inner layer ends."""
+    data = small_file
+    if gzip:
+        from spcodec.synthetic import random_encoded_scene
+        from spcodec.writer import WriteOptions, build_bitstream
+        data = build_bitstream(random_encoded_scene(seed=7, clusters=4, patch_layers=2,
+                                                    patch_size=150, sh_degree=3),
+                               WriteOptions(gzip=True))
+    ends = [layer.end_offset for layer in spcodec.decode_layers(data).header.layers]
+    return data, ends
+
+
+def test_info_says_which_layers_a_truncated_file_holds(capsys, tmp_path, small_file):
+    data, ends = _cut(small_file)
+    assert len(ends) == 3
+    cases = {  # stored bytes -> (complete layers, truncated)
+        len(data): (3, False),
+        ends[1]: (2, False),          # a prefix at a layer boundary: valid, not truncated
+        ends[1] + 10: (2, True),      # inside layer 2
+        ends[0] - 1: (0, True),       # inside the sketch layer
+    }
+    for size, (complete, truncated) in cases.items():
+        src = tmp_path / "cut.spc"
+        src.write_bytes(data[:size])
+        code, out, _ = run(capsys, "info", str(src), "--json")
+        doc = json.loads(out)
+        assert code == 0 and (doc["complete_layers"], doc["truncated"]) == (complete, truncated)
+        assert doc["available_bytes"] == size and doc["stored_size"] == size
+        assert [layer["complete"] for layer in doc["layers"]] == [k < complete for k in range(3)]
+        assert [layer["end_offset"] for layer in doc["layers"]] == ends  # the old fields stay
+        code, out, _ = run(capsys, "info", str(src))
+        assert code == 0
+        if truncated:
+            assert f"TRUNCATED: the data ends inside layer {complete}" in out
+            assert (f"--max-layer {complete - 1}" in out) == (complete > 0)
+        elif complete < 3:
+            assert "PREFIX" in out and f"layers 0..{complete - 1} are complete" in out
+        else:
+            assert "TRUNCATED" not in out and "PREFIX" not in out and "INCOMPLETE" not in out
+        assert out.count("INCOMPLETE") == 3 - complete
+
+
+def test_info_on_a_truncated_gzip_file_counts_inflated_bytes(capsys, tmp_path, small_file):
+    data, ends = _cut(small_file, gzip=True)
+    src = tmp_path / "cut.spc.gz"
+    src.write_bytes(data[:-300])  # the last layer's compressed bytes and the trailer are gone
+    code, out, _ = run(capsys, "info", str(src), "--json")
+    doc = json.loads(out)
+    available = len(spcodec.codecs.gunzip(data[:-300], 1 << 30).inner)
+    assert code == 0 and doc["gzip"] and doc["available_bytes"] == available
+    assert doc["complete_layers"] == sum(end <= available for end in ends) == 2
+    assert doc["truncated"]
+
+
+def test_a_truncated_file_error_suggests_the_complete_prefix(capsys, tmp_path, small_file):
+    data, ends = _cut(small_file)
+    src = tmp_path / "cut.spc"
+    src.write_bytes(data[:ends[1] + 10])
+    code, _, err = run(capsys, "decode", str(src), "-o", str(tmp_path / "out.ply"))
+    assert code == 1 and one_line_error(err) and "[truncated]" in err
+    assert "decode layers 0..1 with --max-layer 1" in err
+    assert not (tmp_path / "out.ply").exists()
+    code, _, _ = run(capsys, "decode", str(src), "-o", str(tmp_path / "out.ply"), "--max-layer", "1")
+    assert code == 0 and len(spcodec.read_ply(tmp_path / "out.ply")) == \
+        len(spcodec.decode(data, max_layer=1))
+    src.write_bytes(data[:ends[0] - 1])  # nothing whole: nothing to suggest
+    code, _, err = run(capsys, "decode", str(src), "-o", str(tmp_path / "out.ply"))
+    assert code == 1 and "no layer is complete" in err and "--max-layer" not in err
+
+
+def test_the_truncation_error_carries_the_complete_layer_count(small_file):
+    data, ends = _cut(small_file)
+    with pytest.raises(spcodec.TruncatedError) as caught:
+        spcodec.decode(data[:ends[2] - 1])
+    assert caught.value.complete_layers == 2
+    dec = spcodec.StreamDecoder()
+    dec.feed(data[:ends[1] + 5])
+    with pytest.raises(spcodec.TruncatedError) as caught:
+        dec.close()
+    assert caught.value.complete_layers == 2
+
+
+# ------------------------------------------------------------------------------ --help, ranges
+def _subparsers():
+    from spcodec.cli import build_parser
+    parser = build_parser()
+    action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return parser, action.choices
+
+
+def test_help_gives_every_option_its_default_and_range():
+    from spcodec.cli import Bounded
+    parser, commands = _subparsers()
+    assert {"decode", "info", "demo", "encode", "eval", "render"} <= commands.keys()
+    for name, sub in [("spcodec", parser), *commands.items()]:
+        text = sub.format_help()
+        for action in sub._actions:
+            if not action.option_strings or action.help == argparse.SUPPRESS or \
+                    action.dest in ("help", "version"):
+                continue
+            shown = " ".join(action.help.split()).lower()
+            assert action.required or "default" in shown or "required" in shown, \
+                (name, action.dest, shown)
+            if isinstance(action.type, Bounded):
+                assert str(action.type) in " ".join(text.split()), (name, action.dest)
+
+
+def test_help_defaults_match_the_encoder():
+    from spcodec.cli import PATCH_LAYERS_DEFAULT, RETRAIN_DEFAULTS
+    from spcodec.encoder.patch import PatchConfig
+    from spcodec.encoder.retrain import RetrainConfig
+    assert PATCH_LAYERS_DEFAULT == PatchConfig().layers
+    defaults = RetrainConfig()
+    assert RETRAIN_DEFAULTS == {name: getattr(defaults, name) for name in RETRAIN_DEFAULTS}
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["render", "{spc}", "-o", "{tmp}/x.png", "--turntable", "0"],
+     "argument --turntable: must be an integer in 1..64, got 0"),
+    (["render", "{spc}", "-o", "{tmp}/x.png", "--view", "999"],
+     "--view must be in 0..7 (the --views 8 sampled views), got 999"),
+    (["render", "{spc}", "-o", "{tmp}/x.png", "--view", "-1"], "argument --view: must be"),
+    (["render", "{spc}", "-o", "{tmp}/x.png", "--resolution", "4"], "an integer in 8..8192"),
+    (["render", "{spc}", "-o", "{tmp}/x.png", "--up", "w"], "argument --up: invalid choice"),
+    (["eval", "{spc}", "--reference", "{spc}", "--views", "x"], "expected an integer >= 1"),
+    (["encode", "{spc}", "-o", "{tmp}/x.spc", "--no-retrain", "--tau-max", "nan"],
+     "argument --tau-max: must be a number > 0"),
+    (["encode", "{spc}", "-o", "{tmp}/x.spc", "--no-retrain", "--seed", "-1"], "--seed"),
+    (["decode", "{spc}", "-o", "{tmp}/x.ply", "--max-layer", "-1"], "an integer >= 0"),
+    (["decode", "{spc}"], "the following arguments are required: -o/--output"),
+])
+def test_bad_arguments_are_refused_up_front_in_one_line(capsys, tmp_path, monkeypatch, small_file,
+                                                        argv, message):
+    (tmp_path / "s.spc").write_bytes(small_file)
+    _forbid_work(monkeypatch)
+    code, out, err = run(capsys, *[a.format(spc=tmp_path / "s.spc", tmp=tmp_path) for a in argv])
+    assert code == 2 and one_line_error(err) and message in err, err
+    assert out == "" and sorted(p.name for p in tmp_path.iterdir()) == ["s.spc"]
+
+
+def test_warnings_reach_the_command_line_as_one_line(capsys, monkeypatch):
+    import warnings
+
+    import spcodec.cli
+
+    def handler(args):
+        warnings.warn("something is off\nsecond line", UserWarning, stacklevel=1)
+        return 0
+
+    monkeypatch.setitem(spcodec.cli.COMMANDS, "info", ("x", spcodec.cli.COMMANDS["info"][1],
+                                                       handler))
+    code, _, err = run(capsys, "info", "x.spc")
+    assert code == 0 and err == "spcodec: warning: something is off\n"

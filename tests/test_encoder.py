@@ -115,7 +115,7 @@ def test_cli_encode(tmp_path, capsys):
 
 @pytest.mark.parametrize("argv, message", [
     (["--no-retrain", "-o", "{tmp}/x.spc"], None),
-    ([], "retraining is not available"),
+    (["--no-retrain", "--iterations", "5"], "only apply to retraining"),
     (["--no-retrain", "-o", "{tmp}/missing/x.spc"], "does not exist"),
 ])
 def test_cli_encode_errors(tmp_path, capsys, argv, message):

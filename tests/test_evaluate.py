@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -10,7 +11,14 @@ import pytest
 import spcodec
 from spcodec.cli import main
 from spcodec.encoder.cameras import Camera
-from spcodec.encoder.evaluate import EvalConfig, evaluate_against_dataset, evaluate_against_reference
+from spcodec.encoder.evaluate import (
+    MISMATCH_PSNR_DB,
+    DatasetMismatchWarning,
+    EvalConfig,
+    evaluate_against_dataset,
+    evaluate_against_reference,
+    warn_if_mismatched,
+)
 from spcodec.encoder.images import read_image, write_png
 from spcodec.encoder.render import render_image
 from spcodec.synthetic import make_scene
@@ -58,8 +66,8 @@ def test_evaluation_is_deterministic(scene):
     assert a == b
 
 
-def test_dataset_mode_scores_renders_against_images(tmp_path, scene):
-    """A tiny transforms.json dataset rendered from the scene itself: near-perfect scores."""
+def _tiny_dataset(tmp_path, scene) -> None:
+    """A transforms.json dataset of two views rendered from ``scene`` itself."""
     cams = [Camera.look_at([0, 0, -3.0], [0, 0, 0], [0, -1, 0], 64, 48, 0.9),
             Camera.look_at([3.0, 0, 0], [0, 0, 0], [0, -1, 0], 64, 48, 0.9)]
     frames = []
@@ -70,6 +78,11 @@ def test_dataset_mode_scores_renders_against_images(tmp_path, scene):
     doc = {"camera_angle_x": cams[0].fov_x, "frames": frames}
     (tmp_path / "transforms_test.json").write_text(json.dumps(doc))
     (tmp_path / "transforms_train.json").write_text(json.dumps(doc))
+
+
+def test_dataset_mode_scores_renders_against_images(tmp_path, scene):
+    """A tiny transforms.json dataset rendered from the scene itself: near-perfect scores."""
+    _tiny_dataset(tmp_path, scene)
     report = evaluate_against_dataset(scene, tmp_path, EvalConfig(device="cpu"))
     assert len(report.views) == 2 and report.width == 64 and report.height == 48
     assert report.psnr > 40  # only PNG rounding (8 bits) separates render and image
@@ -110,7 +123,7 @@ def test_render_cli_view_and_turntable(tmp_path, capsys, scene):
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["eval", "{ply}", "--reference", "{ply}", "--views", "0"], "--views must be at least 1"),
+    (["eval", "{ply}", "--reference", "{ply}", "--views", "0"], "--views: must be an integer >= 1"),
     (["eval", "{ply}", "--reference", "{ply}", "--max-layer", "1"], "needs an .spc input"),
     (["eval", "{ply}", "--dataset", "{tmp}/nowhere"], "nowhere"),
     (["render", "{ply}", "-o", "{tmp}/x.png", "--background", "red"], "--background"),
@@ -122,3 +135,78 @@ def test_eval_and_render_errors_are_one_line(tmp_path, capsys, scene, argv, mess
     code = main([a.format(ply=ply, tmp=tmp_path) for a in argv])
     err = capsys.readouterr().err
     assert code != 0 and message in err and err.count("\n") == 1 and "Traceback" not in err
+
+
+# --------------------------------------------------------------------- NaN / inf: one refusal
+def _with_nan(cloud):
+    bad = cloud.subset(slice(None))
+    bad.scales[3, 1] = np.nan
+    bad.opacities[7] = np.inf
+    return bad
+
+
+@pytest.mark.parametrize("argv", [
+    ["encode", "{bad}", "-o", "{tmp}/x.spc", "--no-retrain", "--quiet"],
+    ["render", "{bad}", "-o", "{tmp}/x.png", "--resolution", "32", "--device", "cpu"],
+    ["eval", "{bad}", "--reference", "{good}", "--resolution", "32", "--device", "cpu",
+     "--save-renders", "{tmp}/renders"],
+    ["eval", "{good}", "--reference", "{bad}", "--resolution", "32", "--device", "cpu"],
+])
+def test_encode_render_and_eval_refuse_nan_alike(tmp_path, capsys, scene, argv):
+    bad, good = tmp_path / "bad.ply", tmp_path / "good.ply"
+    spcodec.write_ply(bad, _with_nan(scene))
+    spcodec.write_ply(good, scene)
+    code = main([a.format(bad=bad, good=good, tmp=tmp_path) for a in argv])
+    err = capsys.readouterr().err
+    assert code == 1 and err.count("\n") == 1 and err.startswith("spcodec: error:")
+    assert "1 Gaussians have NaN or infinite scales (first: #3)" in err and "[ply-invalid]" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.ply", "good.ply"]
+
+
+def test_the_evaluation_api_refuses_nan_too(scene):
+    with pytest.raises(spcodec.FormatError, match="NaN or infinite") as caught:
+        evaluate_against_reference(_with_nan(scene), scene, SMALL)
+    assert caught.value.code == "ply-invalid"
+    with pytest.raises(spcodec.FormatError, match="NaN or infinite"):
+        evaluate_against_reference(scene, _with_nan(scene), SMALL)
+
+
+# -------------------------------------------------------------- a model against the wrong images
+def test_the_mismatch_check_warns_below_the_threshold_only():
+    with pytest.warns(DatasetMismatchWarning, match=r"PSNR 4\.9 dB against the images of lego"):
+        assert warn_if_mismatched(4.9, "lego") is True
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert warn_if_mismatched(MISMATCH_PSNR_DB) is False
+        assert warn_if_mismatched(31.0, "lego") is False
+        assert warn_if_mismatched(float("nan")) is False
+
+
+def test_a_model_of_another_scene_is_flagged_against_a_dataset(tmp_path, scene, capsys):
+    _tiny_dataset(tmp_path, scene)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DatasetMismatchWarning)
+        assert evaluate_against_dataset(scene, tmp_path, EvalConfig(device="cpu")).psnr > 40
+    other = make_scene(12, curves=6, per_curve=150, blobs=800).cloud
+    other.means = (other.means + np.float32(1.5)).astype(np.float32)  # elsewhere, unrelated
+    with pytest.warns(DatasetMismatchWarning, match="likely show different scenes"):
+        report = evaluate_against_dataset(other, tmp_path, EvalConfig(device="cpu"))
+    assert report.psnr < MISMATCH_PSNR_DB
+    ply = tmp_path / "other.ply"
+    spcodec.write_ply(ply, other)
+    assert main(["eval", str(ply), "--dataset", str(tmp_path), "--device", "cpu"]) == 0
+    err = capsys.readouterr().err
+    assert err.startswith("spcodec: warning: PSNR ") and err.count("\n") == 1
+
+
+# --------------------------------------------------------------------------- render's views
+def test_render_view_k_is_eval_view_k(tmp_path, capsys, scene):
+    ply = tmp_path / "s.ply"
+    spcodec.write_ply(ply, scene)
+    assert main(["eval", str(ply), "--reference", str(ply), "--views", "3", "--resolution", "40",
+                 "--device", "cpu", "--save-renders", str(tmp_path / "renders")]) == 0
+    assert main(["render", str(ply), "-o", str(tmp_path / "v2.png"), "--views", "3", "--view",
+                 "2", "--resolution", "40", "--device", "cpu"]) == 0
+    capsys.readouterr()
+    panel = read_image(tmp_path / "renders" / "view_002.png")  # reference | ours | error
+    np.testing.assert_array_equal(read_image(tmp_path / "v2.png"), panel[:, :40])

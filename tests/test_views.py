@@ -62,18 +62,53 @@ def test_views_see_the_object_at_any_scale(size: float) -> None:
     cloud = _object_scene(size)
     bounds = robust_bounds(cloud)
     assert np.all(np.abs(bounds.centre) < 0.1 * size)  # floaters do not move the robust centre
-    assert bounds.radius < 1.5 * size  # nor inflate the extent (they sit at 40 x size)
+    assert bounds.radius <= 1.5 * size  # nor inflate the extent past the object's half-diagonal
     for split in ("train", "eval"):
         report = sample_views_report(cloud, 10, RES, split)
         assert len(report) == 10
         for view in report:
             assert view.passed
-            assert view.check.coverage >= 0.25
+            assert view.check.coverage >= 0.15  # the whole disc and box, with a margin
             assert view.check.robust_in_front == 1.0
-            assert view.check.robust_in_frame >= 0.85
+            assert view.check.robust_in_frame >= (1.0 if split == "eval" else 0.85)
             offset = view.camera.position - bounds.centre
             assert np.linalg.norm(offset) > bounds.radius  # outside the object
             assert np.linalg.norm(offset) < 6 * bounds.radius  # and not lost in the distance
+
+
+def _elongated_scene(floaters: bool = True) -> tuple[GaussianCloud, np.ndarray]:
+    """A round body with a thin neck sticking up (-y) that holds under 1% of the Gaussians, like
+    a guitar's neck and headstock; plus far floaters. Returns the cloud and the neck's tip."""
+    rng = np.random.default_rng(5)
+    body = rng.normal(size=(12000, 3))
+    body *= 0.5 * rng.uniform(0, 1, (12000, 1)) ** (1 / 3) / np.linalg.norm(body, axis=1,
+                                                                              keepdims=True)
+    tip = np.array([0.0, -1.2, 0.0])
+    neck = np.linspace([0.0, -0.5, 0.0], tip, 100) + rng.normal(0, 0.005, (100, 3))
+    points = [body, neck]
+    if floaters:
+        far = rng.normal(size=(150, 3))
+        points.append(40.0 * far / np.linalg.norm(far, axis=1, keepdims=True))
+    return _cloud(np.vstack(points), 0.01), tip
+
+
+def test_thin_parts_are_framed_whole_and_floaters_are_not() -> None:
+    """The guitar's headstock was cut off: a percentile box (and a 98 % framing) drops a thin part
+    that holds few Gaussians. Every eval view, and every turntable frame, must show the neck's tip,
+    inside a margin, while floaters at 40x the size stay out of the extent."""
+    cloud, tip = _elongated_scene()
+    assert np.percentile(cloud.means[:, 1], 2) > -0.6  # the core box alone ends at the body
+    bounds = robust_bounds(cloud)
+    assert bounds.lo[1] <= tip[1] + 0.01 and bounds.radius < 1.2  # floaters: about 40
+    for count in (8, 6):
+        for camera in sample_views(cloud, count, RES, "eval"):
+            uv, depth = camera.project(tip[None])
+            assert depth[0] > 0
+            assert 0.04 * RES[0] <= uv[0, 0] <= 0.96 * RES[0]
+            assert 0.04 * RES[1] <= uv[0, 1] <= 0.96 * RES[1]
+    body_only, _ = _elongated_scene(floaters=False)
+    body_only = body_only.subset(slice(0, 12000))
+    assert robust_bounds(body_only).lo[1] > -0.55  # no neck, nothing to take in
 
 
 def test_views_scale_with_the_scene() -> None:
@@ -183,10 +218,11 @@ def test_invalid_arguments() -> None:
 
 
 REAL_SCENES = {  # path under $SPCODEC_DATA -> (up axis, minimum coverage seen in any view)
-    "pdal_fourth_st_spz/fourth_st_inria.ply": ("-y", 0.2),
-    "playcanvas_biker_guitar/biker_from_spz_inria.ply": ("-y", 0.15),
-    "v3dg_donut_mipsplatting/fused.ply": ("+z", 0.4),
-    "kacytran_try_sh3/point_cloud_iteration_7000.ply": ("-y", 0.4),
+    "pdal_fourth_st_spz/fourth_st_inria.ply": ("-y", 0.12),
+    "playcanvas_biker_guitar/biker_from_spz_inria.ply": ("-y", 0.12),
+    "playcanvas_biker_guitar/guitar_inria.ply": ("-y", 0.1),
+    "v3dg_donut_mipsplatting/fused.ply": ("+z", 0.35),
+    "kacytran_try_sh3/point_cloud_iteration_7000.ply": ("-y", 0.35),
 }
 
 
@@ -202,11 +238,11 @@ def test_views_see_real_scenes(relative: str) -> None:
         warnings.simplefilter("error", ViewSamplingWarning)
         train = sample_views_report(cloud, 8, RES, "train", up=up)
         evals = sample_views_report(cloud, 8, RES, "eval", up=up)
-    for view in train + evals:
+    for view, in_frame in [(v, 0.85) for v in train] + [(v, 1.0) for v in evals]:
         assert view.passed
         assert view.check.coverage >= min_coverage
         assert view.check.robust_in_front == 1.0 and view.check.in_front > 0.95
-        assert view.check.robust_in_frame > 0.85
+        assert view.check.robust_in_frame >= in_frame
     gaps = np.linalg.norm(_positions([v.camera for v in train])[:, None]
                           - _positions([v.camera for v in evals])[None], axis=2)
     assert gaps.min() > 0.02 * robust_bounds(cloud).radius

@@ -1,0 +1,199 @@
+"""The patch stage when it prunes: how many patch Gaussians survive (a factor or a target size),
+which ones, and, with retraining, the retrain stage between pruning and layering.
+
+The pipeline calls :func:`encode_pruned_patch` instead of a plain patch encode whenever
+retraining or rate control is on. Without retraining, a target size still works: the least
+important patch Gaussians are dropped until the file fits (quality falls faster than with
+retraining, which is why retraining is the default).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from spcodec.cloud import GaussianCloud
+
+from .importance import blend_weights
+from .patch import PatchEncoder, PatchEncoding, Quantized
+from .ratecontrol import TRAIN_MARGIN, RatePlan, fit_count, plan_count, within
+from .render import resolve_device
+from .retrain import RetrainConfig, RetrainStage, RunControl, spread
+from .training.checkpoint import Checkpointer, fingerprint
+from .training.prune import kept_count, prune_by_importance, select
+from .training.targets import Targets, check_targets, dataset_targets, distillation_targets
+
+if TYPE_CHECKING:
+    from .pipeline import EncoderConfig, ProgressFactory, SceneWriter, SketchOutcome
+
+DISTILLATION_BACKGROUND = (0.0, 0.0, 0.0)
+"""Background of distillation renders (the one ``spcodec eval --reference`` uses)."""
+
+_NO_RETRAIN = RetrainConfig()
+"""Where rate control without retraining takes its view settings from."""
+
+
+@dataclass
+class PatchChoice:
+    """The pruned patch handed back to the pipeline."""
+
+    encoding: PatchEncoding
+    rows: np.ndarray
+    """Indices into the patch cloud of the encoded Gaussians (``encoding.order`` indexes these)."""
+    stats: dict
+
+
+def encode_pruned_patch(cloud: GaussianCloud, sketch: "SketchOutcome", patch: GaussianCloud,
+                        writer: "SceneWriter", config: "EncoderConfig",
+                        dataset: str | Path | None, control: RunControl | None,
+                        progress: "ProgressFactory", times: dict[str, float]) -> PatchChoice:
+    """Prune (and retrain, when ``config.retrain`` is set) the patch, sized by the config."""
+    control = control or RunControl()
+    retrain = config.retrain
+    view_config = retrain or _NO_RETRAIN
+    device = resolve_device(control.device)
+    encoder = PatchEncoder(config.patch, seed=config.seed)
+    stats: dict = {}
+
+    t = time.perf_counter()
+    stage = progress("targets", None)
+    targets = build_targets(cloud, view_config, dataset, device)
+    settings = view_config.render_settings(targets.background)
+    stats["psnr_input"] = check_targets(cloud, targets, settings, device, dataset)
+    weights = blend_weights(cloud, spread(targets.cameras, view_config.importance_views),
+                            settings, device)[sketch.patch_idx]
+    stage.done(f"{len(targets.views)} {targets.mode} views, patch ranked by blend weight")
+    times["targets"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    stage = progress("prune", None)
+    plan = None
+    if config.target_size is not None:
+        plan = plan_count(config.target_size, len(patch), _trial(writer, encoder, patch, weights))
+        stats["rate"] = {"target_bytes": config.target_size, "predicted_bytes":
+                         plan.predicted_bytes, "fixed_bytes": plan.fixed_bytes,
+                         "unpruned_bytes": plan.full_bytes, "predicted_count": plan.count}
+        if plan.note:
+            stats["rate"]["note"] = plan.note
+        keep = plan.count if retrain is None else \
+            min(len(patch), math.ceil(plan.count * (1 + TRAIN_MARGIN)))
+    else:
+        keep = kept_count(len(patch), retrain.patch_downsample)
+    method = retrain.prune if retrain is not None else "importance"
+    kept = select(method, len(patch), keep, config.seed, weights)
+    stage.done(f"{len(kept)} of {len(patch)} patch Gaussians kept ({method})")
+    times["prune"] = time.perf_counter() - t
+
+    if retrain is None:
+        t = time.perf_counter()
+        stage = progress("patch", None)
+        encoding = encoder.encode(patch.subset(kept), importance=weights[kept])
+        stage.done(f"{len(kept)} Gaussians in {len(encoding.layers)} layers")
+        times["patch"] = time.perf_counter() - t
+        return PatchChoice(encoding, kept, stats)
+    checkpointer = None
+    if control.checkpoint is not None:
+        checkpointer = Checkpointer(Path(control.checkpoint), fingerprint(
+            cloud, config.to_json(), "" if dataset is None else str(Path(dataset).resolve())))
+    return _retrain(retrain, targets, writer, encoder, patch, kept, plan, config, control,
+                    checkpointer, progress, times, stats)
+
+
+def _retrain(retrain: RetrainConfig, targets: Targets, writer: "SceneWriter",
+             encoder: PatchEncoder, patch: GaussianCloud, kept: np.ndarray,
+             plan: RatePlan | None, config: "EncoderConfig", control: RunControl,
+             checkpointer: Checkpointer | None, progress: "ProgressFactory",
+             times: dict[str, float], stats: dict) -> PatchChoice:
+    stage = RetrainStage(retrain, targets, writer.decoded_sketch(), encoder, config.seed,
+                         control, checkpointer)
+    train_stats: dict = {"prune": retrain.prune}
+
+    t = time.perf_counter()
+    report = progress("retrain", retrain.iterations)
+    trained = stage.retrain(patch.subset(kept), train_stats, _meter(report))
+    report.done(f"{len(kept)} patch Gaussians, {train_stats['psnr_before']:.2f} -> "
+                f"{train_stats['psnr_retrained']:.2f} dB on the training views")
+    times["retrain"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    report = progress("quantize", None)
+    quantized, importance = stage.quantize(trained)
+    if plan is not None:  # keep the most important that fit the target
+        count, _ = fit_count(config.target_size, len(trained),
+                             _sized(writer, encoder, trained, quantized, importance))
+        top = prune_by_importance(importance, count)
+        trained, quantized, kept = trained.subset(top), quantized.subset(top), kept[top]
+    report.done(f"{len(kept)} Gaussians, codebooks of {encoder.config.codebook_size} entries")
+    times["quantize"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    report = progress("finish", retrain.finish_iterations or None)
+    quantized, trained = stage.finish(trained, quantized, train_stats, _meter(report))
+    importance = stage.rank(trained)
+    encoding = encoder.layer(trained, quantized, importance)
+    if plan is not None:
+        size = len(writer.write(encoding))
+        if not within(size, config.target_size):  # the one correction after the finish
+            count, size = fit_count(config.target_size, len(trained),
+                                    _sized(writer, encoder, trained, quantized, importance))
+            top = prune_by_importance(importance, count)
+            trained, quantized, kept = trained.subset(top), quantized.subset(top), kept[top]
+            encoding = encoder.layer(trained, quantized, importance[top])
+            stats["rate"]["corrected"] = True
+    gain = train_stats.get("psnr_finished", train_stats["psnr_quantized"]) \
+        - train_stats["psnr_quantized"]
+    report.done(f"quantized {train_stats['psnr_quantized']:.2f} dB, finish {gain:+.2f} dB on the "
+                "training views")
+    times["finish"] = time.perf_counter() - t
+    stats["retrain"] = train_stats
+    if checkpointer is not None:
+        checkpointer.remove()
+    return PatchChoice(encoding, kept, stats)
+
+
+def build_targets(cloud: GaussianCloud, config: RetrainConfig, dataset: str | Path | None,
+                  device) -> Targets:
+    """Dataset training images, or renders of ``cloud`` at sampled training views."""
+    if dataset is not None:
+        from .datasets import load_dataset
+        return dataset_targets(load_dataset(dataset, downscale=config.downscale), device,
+                               config.max_views)
+    from .views import sample_views
+    cameras = sample_views(cloud, config.views, resolution=(config.resolution, config.resolution),
+                           split="train", up=config.up)
+    return distillation_targets(cloud, cameras, config.render_settings(DISTILLATION_BACKGROUND),
+                                device)
+
+
+def _trial(writer: "SceneWriter", encoder: PatchEncoder, patch: GaussianCloud,
+           weights: np.ndarray):
+    """count -> bytes of the file with the ``count`` most important patch Gaussians, coded
+    without retraining (rate control's size model)."""
+    def size(count: int) -> int:
+        if count == 0:
+            return len(writer.write(None))
+        top = prune_by_importance(weights, count)
+        return len(writer.write(encoder.encode(patch.subset(top), importance=weights[top])))
+    return size
+
+
+def _sized(writer: "SceneWriter", encoder: PatchEncoder, trained: GaussianCloud,
+           quantized: Quantized, importance: np.ndarray):
+    """count -> bytes of the file with the ``count`` most important quantized Gaussians."""
+    def size(count: int) -> int:
+        top = prune_by_importance(importance, count)
+        return len(writer.write(encoder.layer(trained.subset(top), quantized.subset(top),
+                                              importance[top])))
+    return size
+
+
+def _meter(stage):
+    """A step callback that moves a progress stage and shows loss and PSNR."""
+    def on_step(report) -> None:
+        stage.update(1, loss=report.loss, psnr=report.psnr)
+    return on_step

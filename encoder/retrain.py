@@ -1,0 +1,285 @@
+"""The encoder's last stage: prune the patch, retrain it with the decoded sketch frozen, quantize
+with a quantization-aware finish (the paper's section "Patch Gaussian Pruning and Optimization").
+
+Order of work, as :class:`RetrainStage` runs it:
+
+1. **Targets**: dataset training images (``--dataset``) or renders of the original at sampled
+   training views (distillation); see :mod:`.training.targets`.
+2. **Prune** the patch Gaussians to ``round(n / patch_downsample)``: by blend weight over the
+   training views (default) or uniformly at random (the paper's); see :mod:`.training.prune`.
+3. **Retrain** the survivors (positions, scales, rotations, opacities, SH at the scene's degree)
+   with Adam at the 3DGS rates, loss 0.8 L1 + 0.2 D-SSIM, the sketch as the file stores it
+   rendered but never changed.
+4. **Quantize** with the patch encoder's codebooks, then the **finish**: fine-tune the codebook
+   entries (and positions at their stored precision) through the renderer with indices fixed,
+   re-assigning indices once midway; see :mod:`.training.quantaware`.
+5. **Order** the patch by blend weight in the whole scene (sketch included, so what the sketch
+   hides ranks low) for the layers.
+
+Long runs report progress, write checkpoints and stop cleanly on request (:class:`RunControl`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+import torch
+
+from spcodec.cloud import GaussianCloud
+from spcodec.errors import Interrupted
+
+from .importance import blend_weights
+from .patch import PatchEncoder, Quantized
+from .render import GaussianParams, RenderSettings
+from .training.checkpoint import Checkpointer
+from .training.loop import FitLoop, StepReport
+from .training.optim import FreeGaussians, LearningRates
+from .training.prune import PruneMethod, select
+from .training.quantaware import CodebookGaussians, with_positions
+from .training.targets import Targets
+
+
+@dataclass
+class RetrainConfig:
+    """Settings of the retraining stage (stored in the file's metadata)."""
+
+    #: Keep ``1 / patch_downsample`` of the patch Gaussians (the paper sweeps 1..20; 1 = keep all).
+    patch_downsample: float = 4.0
+    #: How survivors are chosen: "importance" (largest blend weight over the training views) or
+    #: "uniform" (random, the paper's). See docs/RESULTS.md for the comparison behind the default.
+    prune: PruneMethod = "importance"
+    #: Optimizer steps of the retraining, one training view each.
+    iterations: int = 3000
+    #: Adam rates per attribute (the 3DGS defaults; positions scaled by the camera extent).
+    rates: LearningRates = field(default_factory=LearningRates)
+    #: Distillation: how many training views are sampled around the original, and their side.
+    views: int = 48
+    resolution: int = 400
+    #: Dataset mode: image downscale factor, and at most this many training views (None: all of
+    #: the training split).
+    downscale: int = 1
+    max_views: int | None = None
+    #: Up axis of the scene for sampled views (as for ``spcodec eval``), and whether it renders
+    #: with Mip-Splatting's antialiased opacity (for models trained that way).
+    up: str = "-y"
+    antialiased: bool = False
+    #: Steps of the quantization-aware finish (0: off) and when its one re-assignment happens.
+    finish_iterations: int = 600
+    reassign_at: float = 0.5
+    #: Training views (evenly spread) over which blend weights rank Gaussians for pruning/layers.
+    importance_views: int = 16
+
+    def __post_init__(self) -> None:
+        if self.patch_downsample < 1:
+            raise ValueError(f"patch_downsample must be >= 1, got {self.patch_downsample}")
+        if self.iterations < 0 or self.finish_iterations < 0:
+            raise ValueError("iterations must be >= 0")
+        if self.views < 1 or self.resolution < 8 or self.importance_views < 1:
+            raise ValueError("views and importance_views must be >= 1 and resolution >= 8")
+        if self.downscale < 1 or (self.max_views is not None and self.max_views < 1):
+            raise ValueError("downscale and max_views must be >= 1")
+        if not 0 < self.reassign_at < 1:
+            raise ValueError("reassign_at must lie in (0, 1)")
+
+    def render_settings(self, background: tuple[float, float, float]) -> RenderSettings:
+        return RenderSettings(background=background, antialiased=self.antialiased)
+
+
+@dataclass
+class RunControl:
+    """How a long encode runs; none of it changes the bytes written (so it is not in the
+    file's settings)."""
+
+    #: "auto" (CUDA with gsplat when present), "cpu" or "cuda[:N]".
+    device: str = "auto"
+    #: Checkpoint file (None: none is written) and how often it is rewritten, in optimizer steps.
+    #: It is removed when the encode completes.
+    checkpoint: Path | None = None
+    checkpoint_every: int = 500
+    #: Continue from the checkpoint instead of starting over.
+    resume: bool = False
+    #: Set to stop after the step in progress (a checkpoint is written first).
+    stop: threading.Event = field(default_factory=threading.Event)
+    #: Called after every optimizer step with the stage name ("retrain", "finish").
+    on_step: Callable[[str, StepReport], None] | None = None
+    #: How to resume, for the interruption message (the CLI fills in its command line).
+    resume_hint: str = "run the same encode again with resume enabled"
+    #: True while an optimization loop runs (it then stops cleanly on ``stop``); a Ctrl-C handler
+    #: aborts at once otherwise, since there is nothing to save.
+    stoppable: bool = False
+
+    @contextlib.contextmanager
+    def stoppable_section(self) -> Iterator[None]:
+        self.stoppable = True
+        try:
+            yield
+        finally:
+            self.stoppable = False
+
+
+class RetrainStage:
+    """Prune, retrain and quantize the patch of one scene against ``targets``."""
+
+    def __init__(self, config: RetrainConfig, targets: Targets, sketch: GaussianCloud,
+                 patch_encoder: PatchEncoder, seed: int, control: RunControl,
+                 checkpointer: Checkpointer | None = None) -> None:
+        self.config, self.targets, self.seed, self.control = config, targets, seed, control
+        self.checkpointer = checkpointer
+        self.device = _device(control.device)
+        self.settings = config.render_settings(targets.background)
+        self.frozen = GaussianParams.from_cloud(sketch, self.device) if len(sketch) else None
+        self.patch_encoder = patch_encoder
+        self.importance_cameras = spread(targets.cameras, config.importance_views)
+        self.saved: dict | None = None
+        self.trained: GaussianCloud | None = None
+
+    # ---------------------------------------------------------------------------- pruning
+    def patch_weights(self, scene: GaussianCloud, patch_rows: np.ndarray) -> np.ndarray:
+        """Blend weights of the Gaussians ``patch_rows`` of ``scene`` over the importance views."""
+        weights = blend_weights(scene, self.importance_cameras, self.settings, self.device)
+        return weights[patch_rows]
+
+    def prune(self, patch_count: int, keep: int, weights: np.ndarray | None) -> np.ndarray:
+        return select(self.config.prune, patch_count, keep, self.seed, weights)
+
+    # --------------------------------------------------------------------------- training
+    def retrain(self, survivors: GaussianCloud, stats: dict,
+                on_step: Callable[[StepReport], None] | None = None) -> GaussianCloud:
+        """Optimize the pruned patch against the targets (or take the result from a checkpoint
+        of a later stage when resuming)."""
+        checkpointer = self.checkpointer
+        if self.control.resume:
+            if checkpointer is None:
+                raise ValueError("resume needs a checkpoint path")
+            self.saved = checkpointer.load()
+        elif checkpointer is not None:
+            checkpointer.refuse_stale()
+        model = FreeGaussians(survivors, self.device, self.config.rates, self.targets.extent)
+        loop = self._loop(model, self.config.iterations)
+        stats["psnr_before"] = loop.mean_psnr()
+        start = time.perf_counter()
+        saved = self.saved
+        if saved is not None and saved["stage"] != "retrain":
+            trained = _cloud_from_state(saved["state"]["trained"])
+        else:
+            if saved is not None:
+                model.load_state_dict(saved["state"]["model"])
+                loop.step = saved["step"]
+            self._run_stage("retrain", loop, lambda: {"model": model.state_dict()}, on_step)
+            trained = model.to_cloud()
+        self.trained = trained
+        stats["retrain_seconds"] = time.perf_counter() - start
+        stats["psnr_retrained"] = loop.mean_psnr(GaussianParams.from_cloud(trained, self.device))
+        return trained
+
+    def quantize(self, trained: GaussianCloud) -> tuple[Quantized, np.ndarray]:
+        """k-means codebooks for ``trained`` (weighted by blend weight) and that weight."""
+        importance = self.rank(trained)
+        mean = importance.mean() if len(importance) else 0.0
+        weights = importance / mean if self.patch_encoder.config.weighted_kmeans and mean > 0 \
+            else None
+        return self.patch_encoder.quantize(trained, weights), importance
+
+    def finish(self, trained: GaussianCloud, quantized: Quantized, stats: dict,
+               on_step: Callable[[StepReport], None] | None = None
+               ) -> tuple[Quantized, GaussianCloud]:
+        """The quantization-aware fine-tune of ``quantized`` (codebooks of ``trained``): returns
+        the tuned codebooks with their indices, and ``trained`` with the tuned positions."""
+        cfg, encoder = self.config, self.patch_encoder
+        model = CodebookGaussians(
+            trained.means, quantized.codebooks, quantized.indices, trained.sh_degree, self.device,
+            position_rate=cfg.rates.position_final * self.targets.extent,
+            position_bits=encoder.config.position_bits)
+        loop = self._loop(model, cfg.finish_iterations)
+        stats["psnr_quantized"] = loop.mean_psnr()
+        if cfg.finish_iterations == 0:
+            return quantized, trained
+        start = time.perf_counter()
+        saved = self.saved
+        if saved is not None and saved["stage"] == "finish":
+            model.load_state_dict(saved["state"]["model"])
+            loop.step = saved["step"]
+        reassign_step = max(1, int(round(cfg.reassign_at * cfg.finish_iterations)))
+
+        def reassign(report: StepReport) -> None:
+            model.clamp_entries()
+            if report.step == reassign_step:
+                current = with_positions(trained, model.positions())
+                model.set_indices(encoder.assign(current, model.codebooks()))
+            if on_step is not None:
+                on_step(report)
+
+        trained_state = _cloud_state(self.trained)
+        self._run_stage("finish", loop, lambda: {"model": model.state_dict(),
+                                                 "trained": trained_state}, reassign)
+        stats["psnr_finished"] = loop.mean_psnr()
+        stats["finish_seconds"] = time.perf_counter() - start
+        return (Quantized(model.codebooks(), model.index_arrays()),
+                with_positions(trained, model.positions()))
+
+    def rank(self, patch: GaussianCloud) -> np.ndarray:
+        """Blend weights of ``patch`` in the scene with the frozen sketch in front of it."""
+        sketch = self.frozen.to_cloud() if self.frozen is not None else None
+        scene = GaussianCloud.concat([sketch, patch]) if sketch is not None else patch
+        offset = 0 if sketch is None else len(sketch)
+        return self.patch_weights(scene, np.arange(offset, offset + len(patch)))
+
+    # ---------------------------------------------------------------------------- helpers
+    def _loop(self, model, total: int) -> FitLoop:
+        return FitLoop(model, self.targets, self.settings, total, seed=self.seed,
+                       frozen=self.frozen, stop=self.control.stop)
+
+    def _run_stage(self, name: str, loop: FitLoop, state: Callable[[], dict],
+                   after_step: Callable[[StepReport], None] | None = None) -> None:
+        """Run ``loop`` with ``after_step`` after each step (progress, the finish's
+        re-assignment), periodic checkpoints and a checkpoint when stopped."""
+        control = self.control
+
+        def on_step(report: StepReport) -> None:
+            if after_step is not None:
+                after_step(report)
+            if control.on_step is not None:
+                control.on_step(name, report)
+            every = control.checkpoint_every
+            if checkpointer is not None and every and report.step % every == 0 \
+                    and report.step < report.total:
+                checkpointer.save(name, report.step, state())
+
+        checkpointer = self.checkpointer
+        with control.stoppable_section():
+            completed = loop.run(on_step)
+        if completed:
+            return
+        if checkpointer is None:
+            raise Interrupted(f"interrupted at {name} step {loop.step}/{loop.total} "
+                                    "(no checkpoint was configured, nothing was saved)")
+        checkpointer.save(name, loop.step, state())
+        raise Interrupted(f"interrupted at {name} step {loop.step}/{loop.total}; checkpoint "
+                                f"saved to {checkpointer.path}; to resume: {control.resume_hint}")
+
+
+def _device(spec: str) -> torch.device:
+    from .render import resolve_device
+    return resolve_device(spec)
+
+
+def spread(items: list, count: int) -> list:
+    """``count`` items evenly spread over ``items`` (all when there are fewer)."""
+    if len(items) <= count:
+        return list(items)
+    picks = np.unique(np.linspace(0, len(items) - 1, count).round().astype(int))
+    return [items[i] for i in picks]
+
+
+def _cloud_state(cloud: GaussianCloud) -> dict[str, torch.Tensor]:
+    return {name: torch.from_numpy(np.array(a)) for name, a in cloud.arrays().items()}
+
+
+def _cloud_from_state(state: dict[str, torch.Tensor]) -> GaussianCloud:
+    return GaussianCloud(**{name: t.numpy() for name, t in state.items()})

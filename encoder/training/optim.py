@@ -1,0 +1,130 @@
+"""The optimizer of every training loop: the standard 3DGS parameter groups, rates and schedule.
+
+Rates are those of the INRIA 3DGS code and gsplat's default strategy, which trained almost every
+model people compress: Adam (eps 1e-15) with one group per attribute, the position rate decaying
+exponentially from 1.6e-4 to 1.6e-6 times the scene extent over the run, and constant rates for
+the rest (colour 2.5e-3, higher SH bands 20 times less, opacity 2.5e-2, log-scale 5e-3, rotation
+1e-3). Positions are scaled by the extent so a 0.3-unit object and a 300-unit room move alike.
+
+Free Gaussians are held as six leaf tensors (:class:`FreeGaussians`) rather than the renderer's
+:class:`~spcodec.encoder.render.GaussianParams`, because the DC colour and the higher SH bands take
+different rates; :meth:`FreeGaussians.params` joins them for the renderer.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+import torch
+
+from spcodec.cloud import GaussianCloud
+
+from ..render import GaussianParams
+
+
+@dataclass(frozen=True)
+class LearningRates:
+    """Adam rates per attribute (the 3DGS defaults); ``position_*`` are multiplied by the extent."""
+
+    #: Position rate at the first and the last iteration, per unit of scene extent.
+    position_init: float = 1.6e-4
+    position_final: float = 1.6e-6
+    #: SH DC (base colour); the higher bands use ``sh_dc / sh_rest_divisor``.
+    sh_dc: float = 2.5e-3
+    sh_rest_divisor: float = 20.0
+    opacity: float = 2.5e-2
+    scale: float = 5e-3
+    rotation: float = 1e-3
+
+    def scaled(self, factor: float) -> "LearningRates":
+        """Every rate times ``factor`` (a fine-tune of a converged model may want less)."""
+        return LearningRates(**{f.name: getattr(self, f.name) * factor
+                                if f.name != "sh_rest_divisor" else self.sh_rest_divisor
+                                for f in fields(self)})
+
+
+def position_rate(rates: LearningRates, extent: float, step: int, total: int) -> float:
+    """Log-linear decay from ``position_init`` to ``position_final`` over ``total`` steps."""
+    t = min(max(step / max(total, 1), 0.0), 1.0)
+    log_rate = (1.0 - t) * math.log(rates.position_init) + t * math.log(rates.position_final)
+    return math.exp(log_rate) * extent
+
+
+_ATTRIBUTES = ("means", "scales", "quats", "opacities", "sh_dc", "sh_rest")
+
+
+class FreeGaussians:
+    """Gaussians optimized freely (retraining, vanilla training): six leaf tensors and their Adam.
+
+    ``sh_dc`` is held as (N, 1, 3) and ``sh_rest`` as (N, K, 3), so :meth:`params` is one
+    concatenation; the position rate follows :func:`position_rate` over the run.
+    """
+
+    def __init__(self, cloud: GaussianCloud, device: torch.device | str,
+                 rates: LearningRates = LearningRates(), extent: float = 1.0) -> None:
+        arrays = (cloud.means, cloud.scales, cloud.quats, cloud.opacities,
+                  cloud.sh_dc[:, None, :], cloud.sh_rest)
+        self.tensors = {name: torch.tensor(np.ascontiguousarray(a), dtype=torch.float32,
+                                           device=device).requires_grad_(True)
+                        for name, a in zip(_ATTRIBUTES, arrays)}
+        self.rates, self.extent = rates, float(extent)
+        self.optimizer = make_optimizer(self.tensors, rates, self.extent)
+
+    def __len__(self) -> int:
+        return int(self.tensors["means"].shape[0])
+
+    def params(self) -> GaussianParams:
+        t = self.tensors
+        return GaussianParams(t["means"], t["scales"], t["quats"], t["opacities"],
+                              torch.cat([t["sh_dc"], t["sh_rest"]], dim=1))
+
+    def before_step(self, step: int, total: int) -> None:
+        set_position_rate(self.optimizer, position_rate(self.rates, self.extent, step, total))
+
+    def state_dict(self) -> dict:
+        return {"tensors": {k: v.detach().clone() for k, v in self.tensors.items()},
+                "optimizer": self.optimizer.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        with torch.no_grad():
+            for name, value in state["tensors"].items():
+                self.tensors[name].copy_(value)
+        self.optimizer.load_state_dict(state["optimizer"])
+
+    def to_cloud(self) -> GaussianCloud:
+        """A float32 numpy copy, quaternions normalized (the renderer's and the coder's view)."""
+        with torch.no_grad():
+            t = self.tensors
+            quats = t["quats"] / t["quats"].norm(dim=1, keepdim=True).clamp_min(1e-12)
+            arrays = [a.detach().to("cpu", torch.float32).numpy() for a in
+                      (t["means"], t["scales"], quats, t["opacities"], t["sh_dc"], t["sh_rest"])]
+        means, scales, quats, opacities, sh_dc, sh_rest = arrays
+        return GaussianCloud(means=means, scales=scales, quats=quats, opacities=opacities,
+                             sh_dc=sh_dc[:, 0, :], sh_rest=sh_rest)
+
+
+def make_optimizer(tensors: dict[str, torch.Tensor], rates: LearningRates,
+                   extent: float) -> torch.optim.Adam:
+    """Adam (eps 1e-15) with one group per attribute, named like it; the position group's rate is
+    set each step by :func:`set_position_rate`."""
+    lr = {"means": rates.position_init * extent, "scales": rates.scale, "quats": rates.rotation,
+          "opacities": rates.opacity, "sh_dc": rates.sh_dc,
+          "sh_rest": rates.sh_dc / rates.sh_rest_divisor}
+    groups = [{"params": [tensors[name]], "lr": lr[name], "name": name} for name in _ATTRIBUTES]
+    return torch.optim.Adam(groups, lr=0.0, eps=1e-15)
+
+
+def set_position_rate(optimizer: torch.optim.Optimizer, rate: float) -> None:
+    for group in optimizer.param_groups:
+        if group.get("name") == "means":
+            group["lr"] = rate
+
+
+def camera_extent(positions: np.ndarray) -> float:
+    """1.1 times the largest distance of a camera centre from their mean (the 3DGS rule for the
+    spatial rate scale); never zero."""
+    positions = np.asarray(positions, np.float64).reshape(-1, 3)
+    radius = float(np.linalg.norm(positions - positions.mean(axis=0), axis=1).max())
+    return 1.1 * radius if radius > 0 else 1.0

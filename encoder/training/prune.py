@@ -1,0 +1,45 @@
+"""Which patch Gaussians survive pruning: a uniform random sample (the paper's) or the most
+important by blend weight (LightGaussian, Reduced-3DGS).
+
+Both keep ``round(n / factor)`` Gaussians (at least one when there are any), returned as sorted
+indices so the survivors keep their input order.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+
+PruneMethod = Literal["importance", "uniform"]
+
+
+def kept_count(n: int, factor: float) -> int:
+    """Survivors of a downsample by ``factor`` (>= 1)."""
+    if factor < 1:
+        raise ValueError(f"downsample factor must be >= 1, got {factor}")
+    return 0 if n == 0 else max(1, int(round(n / factor)))
+
+
+def prune_uniform(n: int, keep: int, seed: int) -> np.ndarray:
+    """``keep`` of ``n`` indices drawn uniformly without replacement (seeded), sorted."""
+    rng = np.random.default_rng([seed, 0x5EED])
+    return np.sort(rng.choice(n, size=min(keep, n), replace=False)).astype(np.int64)
+
+
+def prune_by_importance(weights: np.ndarray, keep: int) -> np.ndarray:
+    """Indices of the ``keep`` largest weights (ties by index), sorted."""
+    order = np.argsort(-np.asarray(weights, np.float64), kind="stable")
+    return np.sort(order[:keep]).astype(np.int64)
+
+
+def select(method: PruneMethod, n: int, keep: int, seed: int,
+           weights: np.ndarray | None = None) -> np.ndarray:
+    """The survivors by ``method`` (weights are required for "importance")."""
+    if method == "uniform":
+        return prune_uniform(n, keep, seed)
+    if method == "importance":
+        if weights is None:
+            raise ValueError("importance pruning needs blend weights")
+        return prune_by_importance(weights, keep)
+    raise ValueError(f"unknown prune method {method!r}: use 'importance' or 'uniform'")

@@ -1,0 +1,114 @@
+"""What a training loop fits: posed target images, from a dataset or rendered from the original.
+
+* **Distillation** (a PLY and nothing else): the original model is rendered at views sampled
+  around it (:func:`~spcodec.encoder.views.sample_views`, split ``"train"``, which never shares a
+  camera with the ``"eval"`` views that ``spcodec eval --reference`` judges by), and those renders
+  are the targets.
+* **Dataset** (``--dataset DIR``): the dataset's training images; its test split stays held out for
+  evaluation.
+
+Targets live on the training device as float32 (H, W, 3) tensors: a few dozen views of 400x400
+take ~2 MB each.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import torch
+
+from spcodec.cloud import GaussianCloud
+from spcodec.errors import UsageError
+
+from ..cameras import Camera
+from ..render import GaussianParams, RenderSettings, render
+from .loss import psnr_of
+from .optim import camera_extent
+
+TargetMode = Literal["distillation", "dataset"]
+
+MIN_VISIBLE_ALPHA = 0.01
+"""Below this mean accumulated opacity over the training views, the cameras do not see the model."""
+
+
+@dataclass
+class TargetView:
+    """One training view: its camera, target image and (optional) mask of valid pixels."""
+
+    camera: Camera
+    image: torch.Tensor
+    mask: torch.Tensor | None = None
+
+
+@dataclass
+class Targets:
+    """The training views of one run, their background colour and the scene extent they imply."""
+
+    views: list[TargetView]
+    background: tuple[float, float, float]
+    mode: TargetMode
+
+    @property
+    def cameras(self) -> list[Camera]:
+        return [v.camera for v in self.views]
+
+    @property
+    def extent(self) -> float:
+        """The spatial scale of position learning rates (see :func:`camera_extent`)."""
+        return camera_extent(np.stack([c.position for c in self.cameras]))
+
+
+def distillation_targets(original: GaussianCloud, cameras: list[Camera], settings: RenderSettings,
+                         device: torch.device) -> Targets:
+    """Renders of ``original`` at ``cameras`` (sampled "train" views) as targets."""
+    params = GaussianParams.from_cloud(original, device)
+    views = []
+    with torch.no_grad():
+        for camera in cameras:
+            image = render(params, camera, settings).image.clamp(0.0, 1.0)
+            views.append(TargetView(camera, image.to(torch.float32)))
+    return Targets(views, settings.background, "distillation")
+
+
+def dataset_targets(dataset, device: torch.device, max_views: int | None = None) -> Targets:
+    """The training split of a loaded :class:`~spcodec.encoder.datasets.Dataset`."""
+    chosen = dataset.train[:max_views] if max_views else dataset.train
+    if not chosen:
+        raise UsageError(f"dataset {dataset.root} has no training views")
+    views = []
+    for view in chosen:
+        image = torch.from_numpy(np.ascontiguousarray(view.load_image())).to(device)
+        mask = view.valid_mask()
+        views.append(TargetView(view.camera, image,
+                                None if mask is None else torch.from_numpy(mask).to(device)))
+    background = tuple(float(c) for c in dataset.background)
+    return Targets(views, background, "dataset")
+
+
+def check_targets(model: GaussianCloud, targets: Targets, settings: RenderSettings,
+                  device: torch.device, source: str | None = None) -> float:
+    """Refuse targets whose cameras do not see ``model`` (a UsageError when it covers less than
+    :data:`MIN_VISIBLE_ALPHA` of their pixels on average: nothing could be trained), and warn
+    when dataset images and model look unrelated before any training (the evaluation's
+    :func:`~spcodec.encoder.evaluate.warn_if_mismatched`). Returns the mean PSNR of ``model``
+    over the targets."""
+    from ..evaluate import warn_if_mismatched
+
+    params = GaussianParams.from_cloud(model, device)
+    alphas, psnrs = [], []
+    with torch.no_grad():
+        for view in targets.views:
+            result = render(params, view.camera, settings)
+            alphas.append(float(result.alpha.mean()))
+            psnrs.append(psnr_of(result.image, view.image))
+    mean = float(np.mean(alphas)) if alphas else 0.0
+    if mean < MIN_VISIBLE_ALPHA:
+        raise UsageError(f"the training cameras do not see the model (it covers {mean:.2%} of "
+                         "their pixels on average): are the dataset and the PLY of the same scene "
+                         "and coordinate frame?")
+    psnr = float(np.mean(psnrs))
+    if targets.mode == "dataset":
+        warn_if_mismatched(psnr, source)
+    return psnr

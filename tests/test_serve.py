@@ -184,9 +184,12 @@ def test_cli_serve_prints_a_url_that_serves_ranges_and_stops_on_ctrl_c(tmp_path)
 
     scene = tmp_path / "scene.spc"
     scene.write_bytes(SCENE)
+    # a shell's background job inherits SIGINT ignored, and Python then keeps it ignored: give the
+    # command the default disposition a terminal would
     proc = subprocess.Popen([sys.executable, "-m", "spcodec.cli", "serve", str(scene), "--port", "0",
                              "--throttle", "100000"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+                            text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         line = proc.stdout.readline()
         match = re.search(r"http://([\d.]+):(\d+)/", line)

@@ -12,7 +12,8 @@ memory:
 * in one Node process (bench/web/decode_bench.mjs): the JS ``decode()``, the JS ``StreamDecoder``
   fed 64 KiB chunks, a JS reader of the scene's INRIA PLY into the same typed arrays, and SPZ's
   own loader (``@adobe/spz``, the WebAssembly build of the SPZ reference library; PlayCanvas's
-  splat-transform reads SPZ through it) on the scene's own .spz where it has one.
+  splat-transform reads SPZ through it) on the scene's own .spz where it has one, and the
+  decoder's inflater against fflate's on the scene's zlib sections.
 
 The best over rounds is reported. Needs ``npm ci`` in web/ and (for SPZ) in bench/web/.
 
@@ -125,6 +126,15 @@ def main() -> None:
               f"{r['js_ply_read_s'] * 1000:.1f} | {spz_cell} | "
               f"{r['js_decode_s'] / r['py_decode_s']:.2f} | "
               f"{r['js_decode_s'] / r['js_ply_read_s']:.2f} |")
+    print("\n| scene | zlib raw MB | JS inflate ms (MB/s) | fflate unzlibSync ms (MB/s) |")
+    print("|---|---:|---:|---:|")
+    for s in scenes:
+        r = best[s["name"]]
+        mb = r["zlib_raw_bytes"] / 1e6
+        ff = "-" if r.get("fflate_inflate_s") is None else \
+            f"{r['fflate_inflate_s'] * 1000:.1f} ({mb / r['fflate_inflate_s']:.0f})"
+        print(f"| {s['name']} | {mb:.2f} | {r['js_inflate_s'] * 1000:.1f} "
+              f"({mb / r['js_inflate_s']:.0f}) | {ff} |")
     if args.json:
         args.json.write_text(json.dumps({"node": node_info["node"], "spz_loader": node_info["spz_loader"],
                                          "scenes": scenes, "results": best}, indent=1))

@@ -128,6 +128,14 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
     except KeyError:
         raise UsageError(f"unknown codec {config.codec!r}: use zlib or zstd") from None
     times: dict[str, float] = {}
+    prepared = None
+    if config.retrain is not None or config.target_size is not None:
+        from .prune_retrain import prepare_targets
+        from .retrain import RunControl
+
+        control = control or RunControl()
+        control.check_checkpoint()
+        prepared = prepare_targets(cloud, config, dataset, control, progress, times)
     sketch = encode_sketch(cloud, config, progress, times)
     metadata = {"encoder": "spcodec", "version": _version(), "source": source_name,
                 "settings": config.to_json()}
@@ -135,7 +143,7 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
                          WriteOptions(codec=codec, gzip=config.gzip))
     patch_cloud = cloud.subset(sketch.patch_idx)
     extra: dict = {}
-    if config.retrain is None and config.target_size is None:
+    if prepared is None:
         t = time.perf_counter()
         stage = progress("patch", None)
         patch = PatchEncoder(config.patch, seed=config.seed).encode(patch_cloud)
@@ -145,8 +153,8 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
     else:
         from .prune_retrain import encode_pruned_patch
 
-        choice = encode_pruned_patch(cloud, sketch, patch_cloud, writer, config, dataset, control,
-                                     progress, times)
+        choice = encode_pruned_patch(cloud, sketch, patch_cloud, writer, config, prepared,
+                                     dataset, control, progress, times)
         patch, rows, extra = choice.encoding, choice.rows, choice.stats
 
     t = time.perf_counter()

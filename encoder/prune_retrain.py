@@ -16,13 +16,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+import torch
 
 from spcodec.cloud import GaussianCloud
 
 from .importance import blend_weights
 from .patch import PatchEncoder, PatchEncoding, Quantized
 from .ratecontrol import TRAIN_MARGIN, RatePlan, fit_count, plan_count, within
-from .render import resolve_device
+from .render import RenderSettings, resolve_device
 from .retrain import RetrainConfig, RetrainStage, RunControl, spread
 from .training.checkpoint import Checkpointer, fingerprint
 from .training.prune import kept_count, prune_by_importance, select
@@ -48,27 +49,47 @@ class PatchChoice:
     stats: dict
 
 
-def encode_pruned_patch(cloud: GaussianCloud, sketch: "SketchOutcome", patch: GaussianCloud,
-                        writer: "SceneWriter", config: "EncoderConfig",
-                        dataset: str | Path | None, control: RunControl | None,
-                        progress: "ProgressFactory", times: dict[str, float]) -> PatchChoice:
-    """Prune (and retrain, when ``config.retrain`` is set) the patch, sized by the config."""
-    control = control or RunControl()
-    retrain = config.retrain
-    view_config = retrain or _NO_RETRAIN
-    device = resolve_device(control.device)
-    encoder = PatchEncoder(config.patch, seed=config.seed)
-    stats: dict = {}
+@dataclass
+class PreparedTargets:
+    """What pruning and retraining look at, made before any other work so that a bad dataset
+    fails fast: the targets, how they are rendered, and the device."""
 
+    targets: Targets
+    settings: RenderSettings
+    device: torch.device
+    psnr_input: float
+    """PSNR of the input model against its targets (the mismatch check's figure)."""
+
+
+def prepare_targets(cloud: GaussianCloud, config: "EncoderConfig", dataset: str | Path | None,
+                    control: RunControl, progress: "ProgressFactory",
+                    times: dict[str, float]) -> PreparedTargets:
+    """Load or render the targets and check that they belong to ``cloud``."""
+    view_config = config.retrain or _NO_RETRAIN
     t = time.perf_counter()
     stage = progress("targets", None)
+    device = resolve_device(control.device)
     targets = build_targets(cloud, view_config, dataset, device)
     settings = view_config.render_settings(targets.background)
-    stats["psnr_input"] = check_targets(cloud, targets, settings, device, dataset)
-    weights = blend_weights(cloud, spread(targets.cameras, view_config.importance_views),
-                            settings, device)[sketch.patch_idx]
-    stage.done(f"{len(targets.views)} {targets.mode} views, patch ranked by blend weight")
+    psnr = check_targets(cloud, targets, settings, device, dataset)
+    stage.done(f"{len(targets.views)} {targets.mode} views, input at {psnr:.2f} dB")
     times["targets"] = time.perf_counter() - t
+    return PreparedTargets(targets, settings, device, psnr)
+
+
+def encode_pruned_patch(cloud: GaussianCloud, sketch: "SketchOutcome", patch: GaussianCloud,
+                        writer: "SceneWriter", config: "EncoderConfig",
+                        prepared: PreparedTargets, dataset: str | Path | None,
+                        control: RunControl, progress: "ProgressFactory",
+                        times: dict[str, float]) -> PatchChoice:
+    """Prune (and retrain, when ``config.retrain`` is set) the patch, sized by the config."""
+    retrain = config.retrain
+    view_config = retrain or _NO_RETRAIN
+    encoder = PatchEncoder(config.patch, seed=config.seed)
+    targets = prepared.targets
+    stats: dict = {"psnr_input": prepared.psnr_input}
+    weights = blend_weights(cloud, spread(targets.cameras, view_config.importance_views),
+                            prepared.settings, prepared.device)[sketch.patch_idx]
 
     t = time.perf_counter()
     stage = progress("prune", None)

@@ -5,8 +5,9 @@ which grows almost linearly with the number of patch Gaussians for given codeboo
 the one free knob is how many patch Gaussians survive pruning:
 
 1. **Predict** (:func:`plan_count`): write trial files of the pruned patch without retraining
-   (real codebooks, real Draco and zlib) and solve for the count whose file hits the target,
-   with one secant correction when the first guess is off.
+   (real codebooks, real Draco and zlib) and solve for the count whose file hits the target by
+   interpolation within a shrinking bracket (sizes are not quite linear in the count: codebooks
+   grow until they hold their 256 entries), usually in two or three trials.
 2. **Retrain** a few percent more Gaussians than predicted (:data:`TRAIN_MARGIN`): retraining
    changes the statistics a little, and surplus is cheap to drop later while a shortfall cannot
    be made up.
@@ -31,6 +32,9 @@ TOLERANCE = 0.05
 
 TRAIN_MARGIN = 0.06
 """Retrain this fraction more Gaussians than predicted (dropped again by :func:`fit_count`)."""
+
+MAX_TRIALS = 8
+"""Trial writes :func:`plan_count` makes at most (interpolation steps within a bracket)."""
 
 MIN_PATCH = 16
 """Fewer patch Gaussians than this is not a scene any more: the target is too small."""
@@ -88,15 +92,21 @@ def plan_count(target: int, patch_count: int, trial: Callable[[int], int]) -> Ra
             f"target {target:,} bytes is above the unpruned encode ({full:,} bytes): every patch "
             "Gaussian is kept and the file stays smaller than the target")
         return RatePlan(patch_count, full, fixed, full, note)
-    count = _interpolate(target, 0, fixed, patch_count, full)
-    size = trial(count)
-    if not within(size, target):  # one secant step through the nearer known point
-        lo, hi = (count, size), (patch_count, full)
-        if size > target:
-            lo, hi = (0, fixed), (count, size)
+    lo, hi = (0, fixed), (patch_count, full)
+    best = hi
+    for _ in range(MAX_TRIALS):
         count = _interpolate(target, *lo, *hi)
+        if not lo[0] < count < hi[0]:  # the line points at a known end: bisect instead
+            count = (lo[0] + hi[0]) // 2
+        if count in (lo[0], hi[0]):
+            break
         size = trial(count)
-    return RatePlan(count, size, fixed, full)
+        if abs(size - target) < abs(best[1] - target):
+            best = (count, size)
+        if within(size, target):
+            break
+        lo, hi = (lo, (count, size)) if size > target else ((count, size), hi)
+    return RatePlan(best[0], best[1], fixed, full)
 
 
 def fit_count(target: int, upper: int, size_of: Callable[[int], int]) -> tuple[int, int]:

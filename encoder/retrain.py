@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from spcodec.cloud import GaussianCloud
-from spcodec.errors import Interrupted
+from spcodec.errors import Interrupted, UsageError
 
 from .importance import blend_weights
 from .patch import PatchEncoder, Quantized
@@ -113,6 +113,15 @@ class RunControl:
     #: True while an optimization loop runs (it then stops cleanly on ``stop``); a Ctrl-C handler
     #: aborts at once otherwise, since there is nothing to save.
     stoppable: bool = False
+
+    def check_checkpoint(self) -> None:
+        """Fail before any work when resuming without a checkpoint, or when a fresh run would
+        overwrite one (the stage checks the fingerprint itself when it loads it)."""
+        if self.checkpoint is None:
+            if self.resume:
+                raise UsageError("resuming needs a checkpoint path")
+            return
+        Checkpointer(Path(self.checkpoint), "").load_check(self.resume)
 
     @contextlib.contextmanager
     def stoppable_section(self) -> Iterator[None]:

@@ -17,6 +17,7 @@ import json
 import random
 import shutil
 import subprocess
+import sys
 import zlib
 from pathlib import Path
 
@@ -329,3 +330,19 @@ def test_cli_rejects_corrupt_files_with_the_reference_code(tmp_path):
         assert len(lines) == 1 and lines[0].endswith(f"[{code}]"), f"{code}: {result.stderr!r}"
         assert sorted(p.name for p in tmp_path.iterdir() if p.suffix != ".spc") == [], \
             f"{code}: the CLI left files behind"
+
+
+# ------------------------------------------------------------------------- conformance suite
+CONFORMANCE_COMMAND = ["conformance", "--decoder", "node web/bin/spc-decode.mjs {input} {output}",
+                       "--max-layer-arg", "--max-layer {k}"]
+
+
+def test_js_decoder_passes_the_conformance_suite():
+    """`spcodec conformance --decoder 'node web/bin/spc-decode.mjs {input} {output}'
+    --max-layer-arg '--max-layer {k}'`, exactly: every vector, every max_layer, must pass."""
+    spcodec_cli = Path(sys.executable).with_name("spcodec")
+    command = [str(spcodec_cli) if spcodec_cli.exists() else "spcodec", *CONFORMANCE_COMMAND]
+    result = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=1800)
+    summary = "\n".join(result.stdout.strip().splitlines()[-3:])
+    assert result.returncode == 0, f"{summary}\n{result.stderr[-2000:]}"
+    assert " 0 failed, 0 not run" in summary, summary

@@ -7,7 +7,8 @@
  *   - reading the same scene's INRIA PLY in JavaScript into the same typed arrays (a tight reader:
  *     one Float32Array view of the body, deinterleaved by column);
  *   - SPZ's own loader (@adobe/spz, the WebAssembly build of the SPZ reference library that
- *     PlayCanvas's splat-transform also uses) on the scene's .spz, where the scene has one.
+ *     PlayCanvas's splat-transform also uses) on the scene's .spz, where the scene has one;
+ *   - the decoder's inflater against fflate's (web/'s dev dependency) on the scene's zlib sections.
  *
  *   node bench/web/decode_bench.mjs CONFIG.json
  *
@@ -16,7 +17,8 @@
  */
 import { readFileSync } from 'node:fs';
 
-import { StreamDecoder, decode } from '../../web/src/index.js';
+import { StreamDecoder, decode, inspect } from '../../web/src/index.js';
+import { inflateZlib } from '../../web/src/codecs.js';
 
 /**
  * An INRIA 3DGS PLY (binary little-endian float properties) into the decoder's typed arrays.
@@ -96,6 +98,20 @@ async function streamed(bytes) {
   return count;
 }
 
+/** The stored bytes and raw lengths of a file's zlib sections. */
+function zlibSections(spc) {
+  return inspect(spc).sections.filter((s) => s.codec === 'zlib')
+    .map((s) => [spc.subarray(s.offset, s.offset + s.length), s.raw_length]);
+}
+
+async function loadFflate() {
+  try {
+    return await import('../../web/node_modules/fflate/esm/index.mjs');
+  } catch {
+    return null;
+  }
+}
+
 async function loadSpzModule() {
   try {
     const { default: createSpzModule } = await import('@adobe/spz');
@@ -108,6 +124,7 @@ async function loadSpzModule() {
 
 const config = JSON.parse(readFileSync(process.argv[2], 'utf8'));
 const spz = await loadSpzModule();
+const fflate = await loadFflate();
 const results = [];
 for (const scene of config.scenes) {
   const spc = new Uint8Array(readFileSync(scene.spc));
@@ -122,7 +139,17 @@ for (const scene of config.scenes) {
     js_ply_read_s: await bestOf(() => readInriaPly(ply), config.repeat),
     spz_s: null,
     spz_gaussians: null,
+    zlib_raw_bytes: 0,
+    js_inflate_s: null,
+    fflate_inflate_s: null,
   };
+  const sections = zlibSections(spc);
+  row.zlib_raw_bytes = sections.reduce((sum, [, raw]) => sum + raw, 0);
+  row.js_inflate_s = await bestOf(() => sections.forEach(([stored, raw]) => inflateZlib(stored, raw)), config.repeat);
+  if (fflate) {
+    row.fflate_inflate_s = await bestOf(() => sections.forEach(([stored, raw]) =>
+      fflate.unzlibSync(stored, { out: new Uint8Array(raw) })), config.repeat);
+  }
   if (scene.spz && !spz.missing) {
     const bytes = new Uint8Array(readFileSync(scene.spz));
     const load = () => spz.loadSpzFromBuffer(bytes, { to: spz.CoordinateSystem.UNSPECIFIED });

@@ -73,6 +73,14 @@ class Checkpointer:
                              "settings; run with the same ones, or delete it to start over")
         return data
 
+    def load_check(self, resume: bool) -> None:
+        """The cheap part of :meth:`load` and :meth:`refuse_stale`: does a checkpoint exist as
+        ``resume`` requires?"""
+        if resume and not self.path.exists():
+            raise UsageError(f"--resume: no checkpoint at {self.path}")
+        if not resume:
+            self.refuse_stale()
+
     def refuse_stale(self) -> None:
         """A fresh (non-resumed) encode must not silently overwrite a resumable checkpoint."""
         if self.path.exists():

@@ -58,14 +58,14 @@ _ATTRIBUTES = ("means", "scales", "quats", "opacities", "sh_dc", "sh_rest")
 class FreeGaussians:
     """Gaussians optimized freely (retraining, vanilla training): six leaf tensors and their Adam.
 
-    ``sh_dc`` is held as (N, 1, 3) and ``sh_rest`` as (N, K, 3), so :meth:`params` is one
-    concatenation; the position rate follows :func:`position_rate` over the run.
+    ``sh_dc`` (N, 3) and ``sh_rest`` (N, K, 3) are separate leaves because they take different
+    rates; :meth:`params` joins them. The position rate follows :func:`position_rate` over the run.
     """
 
     def __init__(self, cloud: GaussianCloud, device: torch.device | str,
                  rates: LearningRates = LearningRates(), extent: float = 1.0) -> None:
-        arrays = (cloud.means, cloud.scales, cloud.quats, cloud.opacities,
-                  cloud.sh_dc[:, None, :], cloud.sh_rest)
+        arrays = (cloud.means, cloud.scales, cloud.quats, cloud.opacities, cloud.sh_dc,
+                  cloud.sh_rest)
         self.tensors = {name: torch.tensor(np.ascontiguousarray(a), dtype=torch.float32,
                                            device=device).requires_grad_(True)
                         for name, a in zip(_ATTRIBUTES, arrays)}
@@ -78,7 +78,7 @@ class FreeGaussians:
     def params(self) -> GaussianParams:
         t = self.tensors
         return GaussianParams(t["means"], t["scales"], t["quats"], t["opacities"],
-                              torch.cat([t["sh_dc"], t["sh_rest"]], dim=1))
+                              torch.cat([t["sh_dc"][:, None, :], t["sh_rest"]], dim=1))
 
     def before_step(self, step: int, total: int) -> None:
         set_position_rate(self.optimizer, position_rate(self.rates, self.extent, step, total))
@@ -102,7 +102,7 @@ class FreeGaussians:
                       (t["means"], t["scales"], quats, t["opacities"], t["sh_dc"], t["sh_rest"])]
         means, scales, quats, opacities, sh_dc, sh_rest = arrays
         return GaussianCloud(means=means, scales=scales, quats=quats, opacities=opacities,
-                             sh_dc=sh_dc[:, 0, :], sh_rest=sh_rest)
+                             sh_dc=sh_dc, sh_rest=sh_rest)
 
 
 def make_optimizer(tensors: dict[str, torch.Tensor], rates: LearningRates,

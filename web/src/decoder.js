@@ -120,12 +120,12 @@ class LayerDecoder {
   /**
    * @param {import('./header.js').Header} header
    * @param {import('./limits.js').Limits} limits
-   * @param {import('./draco.js').DracoModule} draco
    */
-  constructor(header, limits, draco) {
+  constructor(header, limits) {
     this.header = header;
     this.limits = limits;
-    this.draco = draco;
+    /** @type {import('./draco.js').DracoModule | null} set by {@link withDraco} when needed */
+    this.draco = null;
     /** @type {import('./patch.js').Codebook[] | null} */
     this.codebooks = null;
     /** @type {Uint8Array | null} */
@@ -156,6 +156,19 @@ class LayerDecoder {
     });
     if (index === 0) this.metadata = payloads.get(SectionType.METADATA) ?? null;
     return payloads;
+  }
+
+  /**
+   * Make sure the Draco module is loaded if a loaded layer has Draco data: instantiating it costs
+   * more than decoding a small file, and files without Draco data (or that fail earlier) need none.
+   * @param {Map<number, Uint8Array>} payloads
+   */
+  async withDraco(payloads) {
+    const sketch = payloads.get(SectionType.SKETCH_POSITIONS);
+    const patch = payloads.get(SectionType.PATCH_POSITIONS);
+    if (!this.draco && ((sketch && sketch.length) || (patch && patch.length > 4 && patch[0] === 3))) {
+      this.draco = await loadDraco();
+    }
   }
 
   /**
@@ -194,10 +207,12 @@ class LayerDecoder {
    * Load, prepare and decode one layer into a new cloud.
    * @param {Uint8Array} data
    * @param {number} index
-   * @returns {Cloud}
+   * @returns {Promise<Cloud>}
    */
-  decode(data, index) {
-    const plan = this.prepare(this.load(data, index), index);
+  async decode(data, index) {
+    const payloads = this.load(data, index);
+    await this.withDraco(payloads);
+    const plan = this.prepare(payloads, index);
     const out = allocateCloud(plan.gaussianCount, this.header.shDegree);
     this.fill(plan, index, out);
     return out;
@@ -369,9 +384,10 @@ export async function decode(bytes, options = {}) {
   const inner = unwrap(data, limits);
   const header = readHeader(inner, limits);
   const last = lastDecodableLayer(header, inner.length, options.maxLayer ?? undefined);
-  const decoder = new LayerDecoder(header, limits, await loadDraco());
+  const decoder = new LayerDecoder(header, limits);
   const payloads = [];
   for (let k = 0; k <= last; k++) payloads.push(decoder.load(inner, k));
+  for (const p of payloads) await decoder.withDraco(p);
   const plans = payloads.map((p, k) => decoder.prepare(p, k));
   payloads.length = 0;
   const total = plans.reduce((sum, plan) => sum + plan.gaussianCount, 0);
@@ -630,9 +646,9 @@ export class StreamDecoder {
     /** @type {StreamLayer[]} */
     const done = [];
     while (this.nextLayer <= last && inner.length >= header.layers[this.nextLayer].endOffset) {
-      if (!this.decoder) this.decoder = new LayerDecoder(header, this.limits, await loadDraco());
+      if (!this.decoder) this.decoder = new LayerDecoder(header, this.limits);
       const k = this.nextLayer;
-      const cloud = this.decoder.decode(inner, k);
+      const cloud = await this.decoder.decode(inner, k);
       if (k === 0) {
         const parsed = parseMetadata(this.decoder.metadata);
         this.metadata = parsed.metadata;

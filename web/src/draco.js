@@ -2,6 +2,9 @@
  * Draco point clouds (sketch positions [R-47], patch positions in mode 3 [R-58]) through the
  * draco3d WebAssembly decoder, with the header checks of [R-49] first.
  *
+ * After decoding, the blob must hold one attribute, POSITION with 3 float32 components (Draco
+ * decodes a GENERIC or int8 attribute without complaint).
+ *
  * The Draco library sizes buffers from its own header before it finds out that a blob is short,
  * so a blob is refused unless it is a point cloud in bitstream 2.3, without Draco metadata,
  * declaring exactly the expected number of points. A WebAssembly abort (out of memory, say)
@@ -98,13 +101,16 @@ export function decodePoints(M, blob, count, what) {
     const id = decoder.GetAttributeId(cloud, M.POSITION);
     if (id < 0) dracoFailed(`${what}: Draco blob has no positions`);
     const attribute = decoder.GetAttribute(cloud, id);
-    if (attribute.num_components() !== 3) dracoFailed(`${what}: Draco positions are not 3D`);
+    if (attribute.num_components() !== 3 || attribute.data_type() !== M.DT_FLOAT32) {
+      dracoFailed(`${what}: the Draco attribute is not POSITION with 3 float32 components`);
+    }
     const n = cloud.num_points();
     if (n !== count) dracoFailed(`${what}: Draco blob holds ${n} points, expected ${count}`);
     const bytes = n * 12;
     const points = new Float32Array(n * 3);
     if (n > 0) {
       ptr = M._malloc(bytes);
+      if (!ptr) dracoFailed(`${what}: the Draco decoder cannot hold ${n} points`);
       if (!decoder.GetAttributeDataArrayForAllPoints(cloud, attribute, M.DT_FLOAT32, bytes, ptr)) {
         dracoFailed(`${what}: Draco positions cannot be read`);
       }

@@ -37,13 +37,13 @@ function badGzip(message) {
 }
 
 /**
- * Parse a gzip member header as zlib does: its length, or -1 when `data` does not hold all of it
- * yet, and its FEXTRA field.
+ * Check a gzip member header as zlib does; return its length, or -1 when `data` does not hold all
+ * of it yet. A header no continuation can make valid is `bad-gzip` at once ([R-82]).
  * @param {Uint8Array} data
- * @returns {{length: number, extra: Uint8Array | null}}
+ * @returns {number}
  */
-function parseHeader(data) {
-  const incomplete = { length: -1, extra: null };
+function headerLength(data) {
+  const incomplete = -1;
   if (data.length < 10) {
     if (data.length >= 3 && data[2] !== 8) badGzip('gzip member uses an unknown compression method');
     if (data.length >= 4 && data[3] & 0xE0) badGzip('gzip header has unknown flags set');
@@ -53,14 +53,10 @@ function parseHeader(data) {
   const flags = data[3];
   if (flags & 0xE0) badGzip('gzip header has unknown flags set');
   let pos = 10;
-  let extra = null;
   if (flags & FEXTRA) {
     if (pos + 2 > data.length) return incomplete;
-    const xlen = data[pos] | (data[pos + 1] << 8);
-    pos += 2;
-    if (pos + xlen > data.length) return incomplete;
-    extra = data.subarray(pos, pos + xlen);
-    pos += xlen;
+    pos += 2 + (data[pos] | (data[pos + 1] << 8));
+    if (pos > data.length) return incomplete;
   }
   for (const flag of [FNAME, FCOMMENT]) {
     if (flags & flag) {
@@ -75,7 +71,7 @@ function parseHeader(data) {
     if ((crc32(data.subarray(0, pos)) & 0xFFFF) !== want) badGzip('gzip header CRC mismatch');
     pos += 2;
   }
-  return { length: pos, extra };
+  return pos;
 }
 
 /**
@@ -161,13 +157,13 @@ export class GzipReader {
       const head = new Uint8Array(this.head.length + chunk.length);
       head.set(this.head);
       head.set(chunk, this.head.length);
-      const parsed = parseHeader(head);
-      if (parsed.length < 0) {
+      const length = headerLength(head);
+      if (length < 0) {
         this.head = head;
         return;
       }
-      this.headerLength = parsed.length;
-      chunk = head.subarray(parsed.length);
+      this.headerLength = length;
+      chunk = head.subarray(length);
       this.head = new Uint8Array(0);
     }
     if (!this.inflater.done) {

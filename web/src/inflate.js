@@ -16,6 +16,8 @@
  * then undone: the decoder waits for more input, or fails when the input has ended.
  */
 
+import { allocate } from './errors.js';
+
 export const INPUT_PADDING = 16;
 
 const LEN_BASE = new Uint16Array([3, 4, 5, 6, 7, 8, 9, 10, 11, 13, 15, 17, 19, 23, 27, 31, 35, 43,
@@ -120,7 +122,7 @@ export class RawInflater {
     this.growable = Boolean(options.growable);
     const first = this.growable ? Math.min(cap, options.initialCapacity ?? 1 << 16) : cap;
     /** @type {Uint8Array} */
-    this.out = new Uint8Array(first);
+    this.out = allocate(Uint8Array, first);
     this.outLength = 0;
     /** @type {Uint8Array} input bytes, followed by at least INPUT_PADDING zeros */
     this.input = new Uint8Array(INPUT_PADDING);
@@ -171,15 +173,15 @@ export class RawInflater {
     const keepFrom = this.pos >>> 3;
     const keep = this.inputLength - keepFrom;
     const need = keep + chunk.length + INPUT_PADDING;
-    if (need > this.input.length || keepFrom > 0) {
-      const input = need > this.input.length ? new Uint8Array(Math.max(need, keep * 2 + 1024))
-        : this.input;
-      input.copyWithin(0, keepFrom, this.inputLength);
-      if (input !== this.input) input.set(this.input.subarray(keepFrom, this.inputLength));
-      this.input = input;
-      this.pos -= keepFrom * 8;
-      this.inputLength = keep;
+    if (need > this.input.length) {
+      const bigger = new Uint8Array(Math.max(need, 2 * keep + 1024));
+      bigger.set(this.input.subarray(keepFrom, this.inputLength));
+      this.input = bigger;
+    } else if (keepFrom > 0) {
+      this.input.copyWithin(0, keepFrom, this.inputLength);
     }
+    this.pos -= keepFrom * 8;
+    this.inputLength = keep;
     this.input.set(chunk, this.inputLength);
     this.inputLength += chunk.length;
     this.input.fill(0, this.inputLength, this.inputLength + INPUT_PADDING);
@@ -330,7 +332,7 @@ export class RawInflater {
     const need = this.outLength + n;
     if (need <= this.out.length) return;
     if (need > this.cap) throw new OutputLimitError(`output passes ${this.cap} bytes`);
-    const bigger = new Uint8Array(Math.min(this.cap, Math.max(need, this.out.length * 2)));
+    const bigger = allocate(Uint8Array, Math.min(this.cap, Math.max(need, this.out.length * 2)));
     bigger.set(this.out.subarray(0, this.outLength));
     this.out = bigger;
   }

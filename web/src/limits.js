@@ -2,8 +2,8 @@
  * Resource limits enforced on untrusted input (spec section 9, [R-60]..[R-62]).
  *
  * Every count or length a file declares is checked against these before anything sized from it is
- * allocated. The defaults are those of the reference decoder, which every conforming decoder
- * should accept at least.
+ * allocated. The defaults are the values of the spec, which conformance is judged under ([R-60]);
+ * a caller may choose others.
  */
 import { SpcError } from './errors.js';
 

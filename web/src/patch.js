@@ -118,7 +118,10 @@ export function parsePositions(raw, count, draco, layer) {
   if (mode > 3) fail('bad-value', `unknown patch position mode ${mode}`);
   if (mode === 3) {
     const blob = raw.subarray(4);
-    if (count === 0 && blob.length === 0) return { mode, positions: new Float32Array(0) };
+    if (count === 0) { // there is no Draco point cloud of zero points ([R-58])
+      if (blob.length) fail('bad-section', `PATCH_POSITIONS holds ${blob.length} Draco bytes for a layer of 0 Gaussians`);
+      return { mode, positions: new Float32Array(0) };
+    }
     return { mode, positions: decodePoints(draco, blob, count, `patch layer ${layer} positions`) };
   }
   const start = mode === 1 ? 28 : 4;

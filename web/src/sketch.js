@@ -243,17 +243,49 @@ export function fillSketch(plan, out) {
         const m = monomialCount(d);
         const model = models[a];
         for (let o = 0; o < width; o++) {
-          sums.fill(0, 0, n);
-          for (let k = 0; k < m; k++) {
-            const coefficient = model[k * width + o];
-            const column = k * n;
-            for (let i = 0; i < n; i++) sums[i] += phi[column + i] * coefficient;
-          }
+          sumTerms(phi, n, model, m, width, o, sums);
           store(a, o, width, sums, n, row, out, c);
         }
       }
     }
     first = end;
+  }
+}
+
+/**
+ * sums[i] = sum over k < m of phi[k][i] * model[k, o], for n points: added term by term in k order
+ * from zero, four points at a time with the running sums in registers.
+ * @param {Float64Array} phi monomial columns (k * n + i)
+ * @param {number} n
+ * @param {Float64Array} model row-major (m, width)
+ * @param {number} m
+ * @param {number} width
+ * @param {number} o
+ * @param {Float64Array} sums
+ */
+function sumTerms(phi, n, model, m, width, o, sums) {
+  let i = 0;
+  for (; i + 4 <= n; i += 4) {
+    let s0 = 0;
+    let s1 = 0;
+    let s2 = 0;
+    let s3 = 0;
+    for (let k = 0, col = i, at = o; k < m; k++, col += n, at += width) {
+      const c = model[at];
+      s0 += phi[col] * c;
+      s1 += phi[col + 1] * c;
+      s2 += phi[col + 2] * c;
+      s3 += phi[col + 3] * c;
+    }
+    sums[i] = s0;
+    sums[i + 1] = s1;
+    sums[i + 2] = s2;
+    sums[i + 3] = s3;
+  }
+  for (; i < n; i++) {
+    let s0 = 0;
+    for (let k = 0, col = i, at = o; k < m; k++, col += n, at += width) s0 += phi[col] * model[at];
+    sums[i] = s0;
   }
 }
 

@@ -10,7 +10,7 @@
 import { Decompress } from 'fzstd';
 
 import { xxh64Low32 } from './checksums.js';
-import { SpcError } from './errors.js';
+import { SpcError, allocate } from './errors.js';
 
 const FRAME_MAGIC = 0xFD2FB528;
 export const ZSTD_MAX_WINDOW = 2 ** 27;
@@ -114,7 +114,7 @@ export function inflateZstd(stored, rawLength) {
   if (header.dictId !== 0) corrupt('zstd frame needs a dictionary');
   const end = frameEnd(stored, header);
   if (end !== stored.length) corrupt('bytes follow the zstd frame');
-  const out = new Uint8Array(rawLength);
+  const out = allocate(Uint8Array, rawLength);
   let produced = 0;
   const decoder = new Decompress((chunk) => {
     if (produced + chunk.length > rawLength) corrupt('zstd frame inflates past its content size');

@@ -1,0 +1,289 @@
+"""Retraining end to end (encoder/retrain.py, encoder/prune_retrain.py, ``spcodec encode``):
+better than no retraining at equal size, resumable to the same bytes, a frozen sketch, rate
+control, the reported PSNR, and one-line errors with no output."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+import spcodec
+from spcodec.cli import main
+from spcodec.encoder.cameras import Camera
+from spcodec.encoder.evaluate import DatasetMismatchWarning, EvalConfig, evaluate_against_reference
+from spcodec.encoder.images import write_png
+from spcodec.encoder.pipeline import EncoderConfig, SceneWriter, encode
+from spcodec.encoder.render import render_image
+from spcodec.encoder.retrain import RetrainConfig, RunControl
+from spcodec.encoder.views import sample_views
+from spcodec.errors import Interrupted, UsageError
+from spcodec.synthetic import make_scene
+
+from conftest import real_file
+
+#: Small and fast: every test here retrains for seconds, not minutes.
+QUICK = RetrainConfig(iterations=60, finish_iterations=16, views=8, resolution=64,
+                      importance_views=8, patch_downsample=3.0)
+EVAL = EvalConfig(views=4, resolution=64, device="cpu")
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _single_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return make_scene(5, curves=4, per_curve=150, blobs=900, sh_degree=1).cloud
+
+
+def retrain_config(**changes) -> EncoderConfig:
+    return EncoderConfig(seed=3, retrain=dataclasses.replace(QUICK, **changes))
+
+
+# ------------------------------------------------------------------------------- quality
+def test_retraining_beats_the_no_retrain_encode_at_equal_size(scene):
+    retrained = encode(scene, retrain_config(iterations=150))
+    size = len(retrained.data)
+    # the same size without retraining: the least important patch Gaussians dropped to fit
+    plain = encode(scene, EncoderConfig(seed=3, target_size=size))
+    assert abs(len(plain.data) - size) <= 0.05 * size
+    ours = evaluate_against_reference(spcodec.decode(retrained.data), scene, EVAL).psnr
+    theirs = evaluate_against_reference(spcodec.decode(plain.data), scene, EVAL).psnr
+    assert ours > theirs + 1.0, (ours, theirs)
+    stats = retrained.stats["retrain"]
+    assert stats["psnr_retrained"] > stats["psnr_before"] + 1.0
+
+
+def test_the_finish_moves_codebooks_and_reports_its_gain(scene):
+    result = encode(scene, retrain_config())
+    stats = result.stats["retrain"]
+    assert {"psnr_quantized", "psnr_finished", "finish_seconds"} <= stats.keys()
+    assert stats["psnr_finished"] > stats["psnr_quantized"] - 0.5
+    off = encode(scene, retrain_config(finish_iterations=0))
+    assert "psnr_finished" not in off.stats["retrain"]
+    assert off.data != result.data
+
+
+# -------------------------------------------------------------------------- frozen sketch
+def test_the_frozen_sketch_is_bit_identical_before_and_after_retraining(scene):
+    config = retrain_config()
+    result = encode(scene, config)
+    assert result.stats["sketch_gaussians"] > 0
+    sketch_after = spcodec.decode_layers(result.data, max_layer=0).cloud
+    plain = encode(scene, EncoderConfig(seed=3))
+    sketch_before = spcodec.decode_layers(plain.data, max_layer=0).cloud
+    assert sketch_after.equals(sketch_before)
+    writer = SceneWriter(result.scene.sh_degree, result.scene.sketch, {},
+                         spcodec.writer.WriteOptions())
+    assert writer.decoded_sketch().equals(sketch_after)
+
+
+def test_training_never_changes_the_frozen_tensors(scene):
+    from spcodec.encoder.patch import PatchEncoder
+    from spcodec.encoder.retrain import RetrainStage
+    from spcodec.encoder.training.targets import distillation_targets
+
+    sketch = scene.subset(np.arange(0, 300))
+    patch = scene.subset(np.arange(300, len(scene)))
+    cams = sample_views(scene, 4, resolution=(48, 48), split="train")
+    targets = distillation_targets(scene, cams, QUICK.render_settings((0, 0, 0)),
+                                   torch.device("cpu"))
+    stage = RetrainStage(dataclasses.replace(QUICK, iterations=10), targets, sketch,
+                         PatchEncoder(), 0, RunControl(device="cpu"))
+    before = [t.clone() for t in stage.frozen.tensors()]
+    stage.retrain(patch, {})
+    assert all(torch.equal(a, b) for a, b in zip(before, stage.frozen.tensors()))
+    assert all(not t.requires_grad for t in stage.frozen.tensors())
+
+
+# --------------------------------------------------------------------- checkpoint, resume
+@pytest.mark.parametrize("stop_stage, stop_at", [("retrain", 23), ("finish", 5)])
+def test_interrupt_and_resume_give_the_same_bytes(tmp_path, scene, stop_stage, stop_at):
+    config = retrain_config(iterations=40)
+    whole = encode(scene, config).data
+
+    control = RunControl(device="cpu", checkpoint=tmp_path / "s.spc.ckpt", checkpoint_every=10)
+
+    def stop_at_step(stage: str, report) -> None:
+        if stage == stop_stage and report.step == stop_at:
+            control.stop.set()
+
+    control.on_step = stop_at_step
+    with pytest.raises(Interrupted, match=f"interrupted at {stop_stage} step {stop_at}/"):
+        encode(scene, config, control=control)
+    assert control.checkpoint.exists()
+    resumed = encode(scene, config, control=RunControl(device="cpu", checkpoint=control.checkpoint,
+                                                       resume=True))
+    assert resumed.data == whole
+    assert not control.checkpoint.exists()  # removed once the encode completes
+
+
+def test_resume_refuses_other_settings_and_a_fresh_run_keeps_the_checkpoint(tmp_path, scene):
+    ckpt = tmp_path / "s.spc.ckpt"
+    control = RunControl(device="cpu", checkpoint=ckpt)
+    control.on_step = lambda stage, report: control.stop.set()
+    with pytest.raises(Interrupted):
+        encode(scene, retrain_config(), control=control)
+    saved = ckpt.read_bytes()
+    with pytest.raises(UsageError, match="another input or other settings"):
+        encode(scene, retrain_config(iterations=61),
+               control=RunControl(device="cpu", checkpoint=ckpt, resume=True))
+    with pytest.raises(UsageError, match="pass --resume to continue it"):
+        encode(scene, retrain_config(), control=RunControl(device="cpu", checkpoint=ckpt))
+    assert ckpt.read_bytes() == saved
+
+
+def test_ctrl_c_leaves_a_checkpoint_no_output_and_one_line(tmp_path, scene):
+    ply, out = tmp_path / "in.ply", tmp_path / "out.spc"
+    spcodec.write_ply(ply, scene)
+    argv = [sys.executable, "-m", "spcodec.cli", "encode", str(ply), "-o", str(out),
+            "--iterations", "100000", "--views", "4", "--resolution", "32", "--threads", "1",
+            "--checkpoint-every", "5", "--device", "cpu", "--quiet"]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    ckpt = tmp_path / "out.spc.ckpt"
+    deadline = time.monotonic() + 120
+    while not ckpt.exists() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+    assert ckpt.exists(), proc.communicate()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130
+    lines = [line for line in err.splitlines() if line.startswith("spcodec: error:")]
+    assert len(lines) == 1 and "checkpoint saved to" in lines[0]
+    assert lines[0].endswith("--quiet --resume")
+    assert not out.exists() and ckpt.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".part")]
+
+
+# ---------------------------------------------------------------------------- rate control
+def _target_size_lands(cloud, target: int, **changes) -> None:
+    result = encode(cloud, dataclasses.replace(retrain_config(**changes), target_size=target))
+    rate = result.stats["rate"]
+    assert abs(len(result.data) - target) <= 0.05 * target, rate
+    assert rate["target_bytes"] == target and rate["predicted_bytes"] > 0
+
+
+def test_target_size_lands_within_five_percent_synthetic(scene):
+    _target_size_lands(scene, 15_000)
+
+
+@pytest.mark.slow
+def test_target_size_lands_within_five_percent_on_a_real_scene():
+    cloud = spcodec.read_ply(real_file("kacytran_try_sh3/point_cloud_iteration_7000.ply"))
+    _target_size_lands(cloud, 60_000, iterations=20, finish_iterations=8)
+
+
+def test_target_size_too_small_is_refused_with_no_output(tmp_path, scene, capsys):
+    ply, out = tmp_path / "in.ply", tmp_path / "out.spc"
+    spcodec.write_ply(ply, scene)
+    code = main(["encode", str(ply), "-o", str(out), "--target-size", "2k", "--iterations", "5",
+                 "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "too small for this scene" in err and err.count("\n") == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.ply"]
+
+
+# ------------------------------------------------------------------------ reported quality
+def test_eval_reproduces_the_psnr_the_encoder_reported(tmp_path, scene, capsys):
+    ply, out, stats = tmp_path / "in.ply", tmp_path / "out.spc", tmp_path / "stats.json"
+    spcodec.write_ply(ply, scene)
+    code = main(["encode", str(ply), "-o", str(out), "--iterations", "30", "--finish-iterations",
+                 "8", "--views", "6", "--resolution", "64", "--device", "cpu", "--quiet",
+                 "--stats", str(stats)])
+    assert code == 0
+    reported = json.loads(stats.read_text())["quality"]
+    printed = capsys.readouterr().out
+    assert f"PSNR {reported['psnr']:.2f} dB" in printed
+    assert main(["eval", str(out), "--reference", str(ply), "--json", "--device", "cpu"]) == 0
+    measured = json.loads(capsys.readouterr().out)
+    assert measured["psnr"] == pytest.approx(reported["psnr"], abs=1e-3)
+    assert measured["ssim"] == pytest.approx(reported["ssim"], abs=1e-5)
+
+
+# ------------------------------------------------------------------------------- datasets
+def _transforms_dataset(root, cloud, cameras_train, cameras_test) -> None:
+    """A NeRF-style dataset whose images are renders of ``cloud``."""
+    root.mkdir(parents=True, exist_ok=True)
+    for split, cams in (("train", cameras_train), ("test", cameras_test)):
+        frames = []
+        for i, cam in enumerate(cams):
+            name = f"{split}_{i:02d}"
+            write_png(root / f"{name}.png", render_image(cloud, cam, device="cpu"))
+            c2w = np.linalg.inv(cam.world_to_camera) @ np.diag([1.0, -1.0, -1.0, 1.0])
+            frames.append({"file_path": name, "transform_matrix": c2w.tolist()})
+        doc = {"camera_angle_x": cams[0].fov_x, "frames": frames}
+        (root / f"transforms_{split}.json").write_text(json.dumps(doc))
+
+
+def test_dataset_mode_trains_on_train_views_and_reports_test_psnr(tmp_path, scene):
+    train = sample_views(scene, 6, resolution=(64, 48), split="train")
+    test = sample_views(scene, 2, resolution=(64, 48), split="eval")
+    _transforms_dataset(tmp_path / "data", scene, train, test)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DatasetMismatchWarning)
+        result = encode(scene, retrain_config(), dataset=tmp_path / "data")
+    quality = result.stats["quality"]
+    assert quality["views"] == 2 and quality["width"] == 64 and "test images" in quality["against"]
+    assert result.stats["retrain"]["psnr_retrained"] > 20
+
+
+def test_unreadable_dataset_is_one_line_and_no_output(tmp_path, scene, capsys):
+    ply, out = tmp_path / "in.ply", tmp_path / "out.spc"
+    spcodec.write_ply(ply, scene)
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "transforms_train.json").write_text("{not json")
+    code = main(["encode", str(ply), "-o", str(out), "--dataset", str(tmp_path / "data")])
+    err = capsys.readouterr().err
+    assert code == 1 and "transforms_train.json" in err
+    assert err.startswith("[1] targets ...\n") and err.count("\n") == 2  # fails before any work
+    assert not out.exists() and not (tmp_path / "out.spc.ckpt").exists()
+
+
+def test_cameras_that_do_not_see_the_model_are_refused(tmp_path, scene, capsys):
+    away = [Camera.look_at(np.array([0, 0, -5.0 - i]), np.array([0, 0, -20.0]),
+                           np.array([0, -1.0, 0]), 48, 32, 0.8) for i in range(3)]
+    _transforms_dataset(tmp_path / "data", scene, away, away[:1])
+    ply, out = tmp_path / "in.ply", tmp_path / "out.spc"
+    spcodec.write_ply(ply, scene)
+    code = main(["encode", str(ply), "-o", str(out), "--dataset", str(tmp_path / "data"),
+                 "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "do not see the model" in err and err.count("\n") == 1
+    assert not out.exists()
+
+
+def test_a_dataset_of_another_scene_warns_before_training(tmp_path, scene):
+    other = make_scene(9, curves=4, per_curve=150, blobs=900, sh_degree=1).cloud
+    other.means = (other.means + np.float32(1.5)).astype(np.float32)  # elsewhere, unrelated
+    train = sample_views(scene, 4, resolution=(48, 32), split="train")
+    _transforms_dataset(tmp_path / "data", other, train, train[:1])
+    with pytest.warns(DatasetMismatchWarning, match="likely show different scenes"):
+        encode(scene, retrain_config(iterations=5, finish_iterations=0),
+               dataset=tmp_path / "data")
+
+
+def test_retraining_options_need_retraining(tmp_path, scene, capsys):
+    ply = tmp_path / "in.ply"
+    spcodec.write_ply(ply, scene)
+    assert main(["encode", str(ply), "-o", str(tmp_path / "x.spc"), "--no-retrain",
+                 "--patch-downsample", "4"]) == 2
+    assert "need retraining" in capsys.readouterr().err
+    assert main(["encode", str(ply), "-o", str(tmp_path / "x.spc"), "--patch-downsample", "4",
+                 "--target-size", "50k"]) == 2
+    assert "give one of" in capsys.readouterr().err
+    assert not (tmp_path / "x.spc").exists()
+    assert os.listdir(tmp_path) == ["in.ply"]

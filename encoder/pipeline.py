@@ -24,7 +24,7 @@ from spcodec.writer import EncodedScene, WriteOptions, build_bitstream
 
 from .categorize import CategorizeConfig, categorize
 from .patch import PatchConfig, PatchEncoder
-from .refine import RefineConfig, refine
+from .refine import RefineConfig, RefineResult, refine
 from .sketch import SketchConfig, SketchEncoder
 
 ProgressFactory = Callable[[str, int | None], "Stage"]
@@ -51,6 +51,10 @@ class EncoderConfig:
     codec: str = "zlib"
     #: Wrap the file in gzip (the paper's final step; a few percent smaller).
     gzip: bool = False
+    #: The sketch layer, a streaming viewer's first picture, ends within this share of the file:
+    #: when it would not, the sketch clusters of least importance per Gaussian go to the patch
+    #: (None: no limit). Measured costs are in docs/RESULTS.md.
+    max_sketch_share: float | None = 0.1
 
     def seeded(self) -> "EncoderConfig":
         """A copy whose stage configs carry ``seed``."""
@@ -115,10 +119,16 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
         raise UsageError(f"unknown codec {config.codec!r}: use zlib or zstd") from None
     times: dict[str, float] = {}
     n = len(cloud)
+    patch_encoder = PatchEncoder(config.patch, seed=config.seed)
 
-    sketch_idx: list[np.ndarray] = []
-    sketch_clusters, patch_idx = [], np.arange(n)
-    sketch_stats: dict = {"clusters_found": 0, "clusters_accepted": 0}
+    t = time.perf_counter()
+    stage = progress("importance", None)
+    importance = patch_encoder.measure_importance(cloud)
+    stage.done(_importance_summary(config.patch))
+    times["importance"] = time.perf_counter() - t
+
+    sketch = _SketchPart(n)
+    refined = None
     if config.use_sketch:
         t = time.perf_counter()
         stage = progress("categorize", None)
@@ -133,49 +143,142 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
         stage.done(f"{len(refined.clusters)} clusters accepted, "
                    f"{refined.stats.sketch_gaussians} sketch Gaussians")
         times["refine"] = time.perf_counter() - t
+        sketch = _encode_sketch(cloud, refined, config, progress, times)
+        sketch.stats.update(clusters_found=found)
 
-        t = time.perf_counter()
-        stage = progress("sketch", len(refined.clusters))
-        sketch = SketchEncoder(config.sketch, config.refine).encode(cloud, refined, stage.update)
-        sketch_clusters, sketch_idx = sketch.clusters, sketch.sources
-        patch_idx = np.sort(np.concatenate([refined.patch, sketch.to_patch]))
-        stage.done(f"{len(sketch.clusters)} clusters, {sum(map(len, sketch_idx))} Gaussians "
-                   f"(Draco step {sketch.step:.3g}, {sketch.stats['rejected_clusters']} clusters "
-                   f"and {sketch.stats['duplicates']} duplicates back to patch)")
-        times["sketch"] = time.perf_counter() - t
-        sketch_stats = {"clusters_found": found, "clusters_accepted": len(refined.clusters),
-                        "clusters_encoded": len(sketch.clusters), "draco_step": sketch.step,
-                        "scene_diameter": sketch.diameter, **sketch.stats,
-                        "refine": {"patch_by_reason": refined.stats.patch_by_reason,
-                                   "splits": refined.stats.splits, "fits": refined.stats.fits}}
-
-    t = time.perf_counter()
-    stage = progress("patch", None)
-    patch_cloud = cloud.subset(patch_idx)
-    patch = PatchEncoder(config.patch, seed=config.seed).encode(patch_cloud)
-    stage.done(f"{len(patch_idx)} Gaussians in {len(patch.layers)} layers")
-    times["patch"] = time.perf_counter() - t
-
-    t = time.perf_counter()
-    stage = progress("write", None)
     metadata = {"encoder": "spcodec", "version": _version(), "source": source_name,
                 "settings": config.to_json()}
-    scene = EncodedScene(cloud.sh_degree, sketch_clusters, patch.codebooks,
-                         patch.layers if len(patch_idx) else [], metadata)
-    data = build_bitstream(scene, WriteOptions(codec=codec, gzip=config.gzip))
-    source = np.concatenate(sketch_idx + [patch_idx[o] for o in patch.order]).astype(np.int64) \
-        if (sketch_idx or len(patch_idx)) else np.zeros(0, np.int64)
-    stage.done(f"{len(data)} bytes")
-    times["write"] = time.perf_counter() - t
+    options = WriteOptions(codec=codec, gzip=config.gzip)
+    data, scene, source = _encode_patch(cloud, sketch, importance, patch_encoder, metadata,
+                                        options, progress, times)
+    moved = 0
+    while refined is not None and sketch.clusters and config.max_sketch_share is not None:
+        keep = _clusters_to_keep(data, refined, importance, config.max_sketch_share)
+        if keep is None:
+            break
+        before = len(refined.patch)
+        refined = _keep_clusters(refined, keep)
+        moved += len(refined.patch) - before
+        sketch = _encode_sketch(cloud, refined, config, progress, times)
+        data, scene, source = _encode_patch(cloud, sketch, importance, patch_encoder, metadata,
+                                            options, progress, times)
+    sketch.stats["moved_to_patch_for_share"] = moved
 
     stats = {
-        "gaussians": n, "sketch_gaussians": int(sum(map(len, sketch_idx))),
-        "patch_gaussians": int(len(patch_idx)), "patch_layers": len(scene.patch_layers),
-        "sketch": sketch_stats, "bytes": len(data), "sections": section_sizes(data),
+        "gaussians": n, "sketch_gaussians": int(sum(map(len, sketch.sources))),
+        "patch_gaussians": int(len(sketch.patch)), "patch_layers": len(scene.patch_layers),
+        "sketch": sketch.stats, "bytes": len(data), "sections": section_sizes(data),
+        "layer_ends": [layer["end_offset"] for layer in inspect(data).to_json()["layers"]],
         "seconds": times,
     }
     stats["sketch_error"] = sketch_error(data, cloud, source, stats["sketch_gaussians"])
     return EncodeResult(data, scene, source, stats)
+
+
+@dataclass
+class _SketchPart:
+    """The sketch clusters of an encode and the Gaussians left to the patch."""
+
+    n: int
+    clusters: list = field(default_factory=list)
+    sources: list[np.ndarray] = field(default_factory=list)
+    patch: np.ndarray | None = None
+    stats: dict = field(default_factory=lambda: {"clusters_found": 0, "clusters_accepted": 0})
+
+    def __post_init__(self) -> None:
+        if self.patch is None:
+            self.patch = np.arange(self.n)
+
+
+def _encode_sketch(cloud: GaussianCloud, refined: RefineResult, config: EncoderConfig,
+                   progress: ProgressFactory, times: dict[str, float]) -> _SketchPart:
+    t = time.perf_counter()
+    stage = progress("sketch", len(refined.clusters))
+    sketch = SketchEncoder(config.sketch, config.refine).encode(cloud, refined, stage.update)
+    part = _SketchPart(len(cloud), sketch.clusters, sketch.sources,
+                       np.sort(np.concatenate([refined.patch, sketch.to_patch])))
+    stage.done(f"{len(sketch.clusters)} clusters, {sum(map(len, sketch.sources))} Gaussians "
+               f"(Draco step {sketch.step:.3g}, {sketch.stats['rejected_clusters']} clusters "
+               f"and {sketch.stats['duplicates']} duplicates back to patch)")
+    times["sketch"] = times.get("sketch", 0.0) + time.perf_counter() - t
+    part.stats = {"clusters_accepted": len(refined.clusters),
+                  "clusters_encoded": len(sketch.clusters), "draco_step": sketch.step,
+                  "scene_diameter": sketch.diameter, **sketch.stats,
+                  "refine": {"patch_by_reason": refined.stats.patch_by_reason,
+                             "splits": refined.stats.splits, "fits": refined.stats.fits}}
+    return part
+
+
+def _encode_patch(cloud: GaussianCloud, sketch: _SketchPart, importance: np.ndarray,
+                  patch_encoder: PatchEncoder, metadata: dict, options: WriteOptions,
+                  progress: ProgressFactory, times: dict[str, float]
+                  ) -> tuple[bytes, EncodedScene, np.ndarray]:
+    """Patch layers of the Gaussians the sketch left, then the file: (data, scene, source)."""
+    patch_idx = sketch.patch
+    t = time.perf_counter()
+    stage = progress("patch", None)
+    patch = patch_encoder.encode(cloud.subset(patch_idx), importance[patch_idx])
+    stage.done(f"{len(patch_idx)} Gaussians in {len(patch.layers)} layers")
+    times["patch"] = times.get("patch", 0.0) + time.perf_counter() - t
+
+    t = time.perf_counter()
+    stage = progress("write", None)
+    scene = EncodedScene(cloud.sh_degree, sketch.clusters, patch.codebooks,
+                         patch.layers if len(patch_idx) else [], metadata)
+    data = build_bitstream(scene, options)
+    source = np.concatenate(sketch.sources + [patch_idx[o] for o in patch.order]).astype(np.int64) \
+        if (sketch.sources or len(patch_idx)) else np.zeros(0, np.int64)
+    stage.done(f"{len(data)} bytes")
+    times["write"] = times.get("write", 0.0) + time.perf_counter() - t
+    return data, scene, source
+
+
+def _clusters_to_keep(data: bytes, refined: RefineResult, importance: np.ndarray,
+                      max_share: float) -> list[int] | None:
+    """Which refined clusters to keep as sketch so that the sketch layer ends within
+    ``max_share`` of the file (None: it already does).
+
+    The clusters that do least for the picture (lowest mean importance) go to the patch first.
+    How many: with the sketch layer's fixed part H (header, metadata), sketch bytes S over K
+    Gaussians, and patch bytes P at p per Gaussian, keeping a fraction f of the sketch gives a
+    layer of H + fS in a file of H + fS + P + (1 - f)Kp; solve for the share, with a 3 % margin
+    for the difference between this estimate and the encoded result.
+    """
+    info = inspect(data).to_json()
+    first = info["layers"][0]
+    end, total = first.get("inner_end_offset", first["end_offset"]), info["file_size"]
+    stored_end = end if first["end_offset"] is None else first["end_offset"]
+    if stored_end <= max_share * info["stored_size"]:
+        return None
+    sketch_bytes = sum(sec["length"] for sec in info["sections"]
+                       if sec["type"].startswith("SKETCH"))
+    fixed, count = end - sketch_bytes, info["layers"][0]["gaussians"]
+    patch_bytes, patch_count = total - end, info["gaussians"] - count
+    per_patch = patch_bytes / patch_count if patch_count else sketch_bytes / max(count, 1)
+    share = 0.97 * max_share
+    fraction = (share * (fixed + patch_bytes + count * per_patch) - fixed) / \
+        (sketch_bytes * (1 - share) + share * count * per_patch)
+    sizes = np.array([len(c) for c in refined.clusters])
+    density = np.array([importance[c].mean() for c in refined.clusters])
+    order = np.argsort(-density, kind="stable")
+    kept = order[np.cumsum(sizes[order]) <= max(fraction, 0.0) * sizes.sum()]
+    return sorted(int(i) for i in kept) if len(kept) < len(sizes) else None
+
+
+def _keep_clusters(refined: RefineResult, keep: list[int]) -> RefineResult:
+    """``refined`` with only the clusters ``keep``; the others join its patch set."""
+    kept = set(keep)
+    dropped = [c for i, c in enumerate(refined.clusters) if i not in kept]
+    patch = np.sort(np.concatenate([refined.patch, *dropped])) if dropped else refined.patch
+    return dataclasses.replace(refined, clusters=[refined.clusters[i] for i in keep],
+                               fits=[refined.fits[i] for i in keep], patch=patch)
+
+
+def _importance_summary(patch: PatchConfig) -> str:
+    if patch.importance != "blend":
+        return f"{patch.importance} proxy"
+    width, height = patch.importance_resolution
+    return f"blend weights over {patch.importance_views} training views of {width}x{height}"
 
 
 def section_sizes(data: bytes) -> dict[str, int]:

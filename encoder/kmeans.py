@@ -119,7 +119,10 @@ def _distinct_rows(rows: np.ndarray, limit: int) -> np.ndarray | None:
 
 def _unique_rows(rows: np.ndarray) -> np.ndarray:
     """Distinct float16 rows in ascending lexicographic order (as ``np.unique(axis=0)``)."""
-    return np.unique(np.asarray(rows).astype(np.float16), axis=0)
+    rows = np.asarray(rows).astype(np.float16)
+    if rows.shape[1] == 1:  # the 1-D sort is several times faster than the row-wise one
+        return np.unique(rows[:, 0])[:, None]
+    return np.unique(rows, axis=0)
 
 
 def _kmeans_1d(values: np.ndarray, weights: np.ndarray, k: int, rng: np.random.Generator

@@ -54,8 +54,11 @@ class PatchConfig:
     #: Number of patch layers (>= 1).
     layers: int = 3
     #: Share of the patch Gaussians in each layer, most important first (renormalized). The first
-    #: layer is small so a streaming client sees the most important Gaussians early.
-    layer_fractions: tuple[float, ...] = (0.2, 0.3, 0.5)
+    #: layer (7 %, with the codebooks) completes within 10 % of the file, a streaming viewer's
+    #: first picture when there is no sketch; the first two (23.5 %) end before 30 % of the file
+    #: with a sketch layer of 6 % (guitar). A fourth layer costs about 1 % in size (each layer
+    #: codes its positions on its own): docs/RESULTS.md, section 7.
+    layer_fractions: tuple[float, ...] = (0.07, 0.165, 0.765)
     #: Codebook trainer (encoder/kmeans.py): "sampled" (exact in one dimension, weight-proportional
     #: samples for vectors) or "exhaustive" (the previous scikit-learn k-means++ on uniform
     #: samples: 5-20x slower for codebooks as good; kept for comparisons).

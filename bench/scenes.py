@@ -14,6 +14,8 @@ REAL = {
     "fourth_st": "pdal_fourth_st_spz/fourth_st_inria.ply",
     "biker": "playcanvas_biker_guitar/biker_from_spz_inria.ply",
     "donut": "v3dg_donut_mipsplatting/fused.ply",
+    "guitar": "playcanvas_biker_guitar/guitar_inria.ply",
+    "kacytran": "kacytran_try_sh3/point_cloud_iteration_7000.ply",
 }
 TILED = {  # name: (real scene tiled, Gaussians)
     "500k": ("fourth_st", 500_000), "1M": ("fourth_st", 1_000_000),

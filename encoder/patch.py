@@ -10,6 +10,7 @@ shows the Gaussians that matter most.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,9 +23,9 @@ from spcodec.sections import Codebook, PatchPositions
 from spcodec.writer import PatchLayer
 
 from .draco import encode_ordered, grid_for
+from .kmeans import exhaustive_codebook, nearest, sampled_codebook
 from .morton import morton_codes
-
-_ASSIGN_CHUNK = 1 << 15
+from .refine import default_jobs
 
 
 @dataclass
@@ -53,15 +54,31 @@ class PatchConfig:
     #: Number of patch layers (>= 1).
     layers: int = 3
     #: Share of the patch Gaussians in each layer, most important first (renormalized). The first
-    #: layer is small so a streaming client sees the most important Gaussians early.
-    layer_fractions: tuple[float, ...] = (0.2, 0.3, 0.5)
-    #: k-means: at most this many samples train a codebook (the rest are only assigned).
-    kmeans_samples: int = 200_000
-    #: k-means iterations (Lloyd) and restarts.
-    kmeans_iterations: int = 60
-    kmeans_restarts: int = 1
+    #: layer (7 %, with the codebooks) completes within 10 % of the file, a streaming viewer's
+    #: first picture when there is no sketch; the first two (23.5 %) end before 30 % of the file
+    #: with a sketch layer of 6 % (guitar). A fourth layer costs about 1 % in size (each layer
+    #: codes its positions on its own): docs/RESULTS.md, section 7.
+    layer_fractions: tuple[float, ...] = (0.07, 0.165, 0.765)
+    #: Codebook trainer (encoder/kmeans.py): "sampled" (exact in one dimension, weight-proportional
+    #: samples for vectors) or "exhaustive" (the previous scikit-learn k-means++ on uniform
+    #: samples: 5-20x slower for codebooks as good; kept for comparisons).
+    kmeans: str = "sampled"
+    #: k-means samples per vector codebook (sampled: draws; exhaustive: at most this many groups).
+    kmeans_samples: int = 65_536
+    #: k-means (Lloyd) iterations at most.
+    kmeans_iterations: int = 40
     #: Weight k-means samples by importance, so codebook entries go where they are visible.
     weighted_kmeans: bool = True
+    #: With weighted k-means, every Gaussian weighs at least this share of the mean importance,
+    #: so Gaussians the sampled views miss (seen from elsewhere) still get entries near them.
+    kmeans_weight_floor: float = 0.1
+    #: What ranks Gaussians into layers and weights k-means: "blend", the blending weight each
+    #: accumulates over ``importance_views`` sampled training views (encoder/importance.py), or
+    #: "footprint", opacity times footprint area (no rendering, but blind to occlusion).
+    importance: str = "blend"
+    #: Views (training split, never eval's) and their (width, height) for "blend".
+    importance_views: int = 6
+    importance_resolution: tuple[int, int] = (256, 192)
 
 
 def coded_attributes(cloud: GaussianCloud) -> dict[PatchAttribute, np.ndarray]:
@@ -128,38 +145,24 @@ def encode_positions(xyz: np.ndarray, mode: str, bits: int = 16) -> PatchPositio
 
 def train_codebook(values: np.ndarray, entry_dim: int, size: int, weights: np.ndarray | None,
                    config: PatchConfig, seed: int) -> np.ndarray:
-    """k-means centroids (<= size, float16) of the attribute's entry_dim-wide groups."""
-    from sklearn.cluster import KMeans
-
+    """At most ``size`` float16 entries for the attribute's entry_dim-wide groups (k-means)."""
     n, width = values.shape
     groups = values.reshape(n * (width // entry_dim), entry_dim)
     w = None if weights is None else np.repeat(weights, width // entry_dim)
-    rng = np.random.default_rng(seed)
-    if len(groups) > config.kmeans_samples:
-        pick = np.sort(rng.choice(len(groups), config.kmeans_samples, replace=False))
-        groups, w = groups[pick], None if w is None else w[pick]
-    distinct = np.unique(groups.astype(np.float16), axis=0)
-    if len(distinct) <= size:  # few distinct values: store them exactly
-        return distinct
-    km = KMeans(n_clusters=size, n_init=config.kmeans_restarts, max_iter=config.kmeans_iterations,
-                random_state=seed)
-    km.fit(groups, sample_weight=w)
-    return np.unique(km.cluster_centers_.astype(np.float16), axis=0)
+    if config.kmeans == "exhaustive":
+        return exhaustive_codebook(groups, w, size, seed, config.kmeans_samples,
+                                   config.kmeans_iterations)
+    if config.kmeans != "sampled":
+        raise ValueError(f"unknown k-means trainer {config.kmeans!r}: use sampled or exhaustive")
+    return sampled_codebook(groups, w, size, seed, samples=config.kmeans_samples,
+                            iterations=config.kmeans_iterations)
 
 
 def assign(values: np.ndarray, entries: np.ndarray) -> np.ndarray:
-    """Index (n, groups) uint8 of the nearest float16 entry for each group, in chunks."""
+    """Index (n, groups) uint8 of the nearest float16 entry for each group."""
     n, width = values.shape
     dim = entries.shape[1]
-    groups = values.reshape(n * (width // dim), dim)
-    book = entries.astype(np.float64)
-    book_sq = (book ** 2).sum(axis=1)
-    out = np.empty(len(groups), np.uint8)
-    for start in range(0, len(groups), _ASSIGN_CHUNK):
-        block = groups[start:start + _ASSIGN_CHUNK]
-        dist = book_sq[None, :] - 2.0 * block @ book.T
-        out[start:start + _ASSIGN_CHUNK] = np.argmin(dist, axis=1)
-    return out.reshape(n, width // dim)
+    return nearest(values.reshape(n * (width // dim), dim), entries).reshape(n, width // dim)
 
 
 @dataclass
@@ -224,12 +227,15 @@ class PatchEncoder:
         q = enc.quantize(cloud)                   # codebooks (k-means) and indices
         q.indices = enc.assign(cloud, q.codebooks)  # indices against given codebooks
         out = enc.layer(cloud, q, importance)     # layers, Morton order within, positions coded
-        out = enc.encode(cloud)                   # all of the above with the default importance
+        out = enc.encode(cloud)                   # all of the above, importance measured
     """
 
-    def __init__(self, config: PatchConfig | None = None, seed: int = 0) -> None:
+    def __init__(self, config: PatchConfig | None = None, seed: int = 0,
+                 jobs: int | None = None) -> None:
         self.config = config or PatchConfig()
         self.seed = seed
+        #: Threads for codebook training, assignment and importance (None: the cores available).
+        self.jobs = jobs
 
     def entry_dim(self, attr: PatchAttribute) -> int:
         """The configured entry dimension of ``attr``, checked against its width."""
@@ -250,16 +256,19 @@ class PatchEncoder:
         if weights is not None and np.shape(weights) != (len(cloud),):
             raise ValueError(f"weights must have shape ({len(cloud)},), got {np.shape(weights)}")
         values = coded_attributes(cloud)
-        codebooks = []
-        for i, (attr, vals) in enumerate(values.items()):
+        seeds = {attr: self.seed + 7919 * i for i, attr in enumerate(values)}
+
+        def train(attr: PatchAttribute) -> tuple[Codebook, np.ndarray]:
             dim = self.entry_dim(attr)
             if len(cloud) == 0:
                 entries = np.zeros((1, dim), np.float16)
             else:
-                entries = train_codebook(vals, dim, cfg.codebook_size, weights, cfg,
-                                         self.seed + 7919 * i)
-            codebooks.append(Codebook(attr, entries))
-        return Quantized(codebooks, self._assign_values(values, codebooks))
+                entries = train_codebook(values[attr], dim, cfg.codebook_size, weights, cfg,
+                                         seeds[attr])
+            return Codebook(attr, entries), assign(values[attr], entries)
+
+        done = dict(zip(values, self._map(train, list(values))))
+        return Quantized([done[a][0] for a in values], {a: done[a][1] for a in values})
 
     def assign(self, cloud: GaussianCloud, codebooks: list[Codebook]
                ) -> dict[PatchAttribute, np.ndarray]:
@@ -270,12 +279,36 @@ class PatchEncoder:
         if [cb.attribute for cb in codebooks] != expected:
             raise ValueError(f"codebooks for {[cb.attribute.name for cb in codebooks]}, the cloud "
                              f"needs {[a.name for a in expected]}")
-        return self._assign_values(coded_attributes(cloud), codebooks)
+        values = coded_attributes(cloud)
+        indices = self._map(lambda cb: assign(values[cb.attribute], cb.entries), codebooks)
+        return {cb.attribute: idx for cb, idx in zip(codebooks, indices)}
 
-    @staticmethod
-    def _assign_values(values: dict[PatchAttribute, np.ndarray], codebooks: list[Codebook]
-                       ) -> dict[PatchAttribute, np.ndarray]:
-        return {cb.attribute: assign(values[cb.attribute], cb.entries) for cb in codebooks}
+    def _map(self, fn, attributes: list) -> list:
+        """``fn`` over per-attribute tasks on :attr:`jobs` threads, widest attributes first.
+
+        Each task runs its numpy/scikit-learn work on one BLAS/OpenMP thread: whole attributes
+        keep two cores busy, where the libraries' own fine-grained threads stalled whenever
+        another process ran (fourth_st's codebooks: 5.2-6.4 s on one thread, 7.4-9.6 s on two).
+        Results do not depend on the number of threads.
+        """
+        from threadpoolctl import threadpool_limits
+
+        def width(item) -> int:
+            attr = item.attribute if isinstance(item, Codebook) else item
+            return attr.width
+
+        order = sorted(range(len(attributes)), key=lambda i: -width(attributes[i]))
+        jobs = min(self.jobs or default_jobs(), len(attributes))
+        with threadpool_limits(limits=1):
+            if jobs <= 1:
+                results = [fn(attributes[i]) for i in order]
+            else:
+                with ThreadPoolExecutor(jobs) as pool:
+                    results = list(pool.map(lambda i: fn(attributes[i]), order))
+        out = [None] * len(attributes)
+        for i, result in zip(order, results):
+            out[i] = result
+        return out
 
     def layer(self, cloud: GaussianCloud, quantized: Quantized, importance: np.ndarray
               ) -> PatchEncoding:
@@ -295,12 +328,34 @@ class PatchEncoder:
             orders.append(members)
         return PatchEncoding(quantized.codebooks, layers, orders)
 
-    def encode(self, cloud: GaussianCloud, importance: np.ndarray | None = None) -> PatchEncoding:
-        """:meth:`quantize` then :meth:`layer`. ``importance`` (n,) orders the layers and, with
-        ``weighted_kmeans``, weights k-means (None: the :func:`footprint_importance` proxy)."""
-        if importance is None:
-            importance = footprint_importance(cloud)
+    def measure_importance(self, cloud: GaussianCloud) -> np.ndarray:
+        """Importance (n,) float64 of every Gaussian of ``cloud`` by the configured measure.
+
+        Pass the whole scene when the patch is part of one (sketch Gaussians occlude patch
+        Gaussians) and take the patch's rows.
+        """
+        cfg = self.config
+        if cfg.importance == "footprint" or len(cloud) == 0:
+            return footprint_importance(cloud)
+        if cfg.importance != "blend":
+            raise ValueError(f"unknown importance {cfg.importance!r}: use blend or footprint")
+        from .importance import training_view_weights
+
+        return training_view_weights(cloud, cfg.importance_views, cfg.importance_resolution,
+                                     seed=self.seed, jobs=self.jobs or default_jobs())
+
+    def kmeans_weights(self, importance: np.ndarray) -> np.ndarray | None:
+        """k-means weights from importance: mean 1 plus the configured floor (None: unweighted)."""
         importance = np.asarray(importance, np.float64)
-        mean = importance.mean() if len(cloud) else 0.0
-        weights = importance / mean if self.config.weighted_kmeans and mean > 0 else None
-        return self.layer(cloud, self.quantize(cloud, weights), importance)
+        mean = importance.mean() if len(importance) else 0.0
+        if not self.config.weighted_kmeans or not mean > 0:
+            return None
+        return importance / mean + self.config.kmeans_weight_floor
+
+    def encode(self, cloud: GaussianCloud, importance: np.ndarray | None = None) -> PatchEncoding:
+        """:meth:`quantize` then :meth:`layer`. ``importance`` (n,) orders the layers and weights
+        k-means (None: :meth:`measure_importance` of ``cloud``)."""
+        if importance is None:
+            importance = self.measure_importance(cloud)
+        importance = np.asarray(importance, np.float64)
+        return self.layer(cloud, self.quantize(cloud, self.kmeans_weights(importance)), importance)

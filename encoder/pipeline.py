@@ -25,7 +25,7 @@ from spcodec.writer import EncodedScene, WriteOptions, build_bitstream
 
 from .categorize import CategorizeConfig, categorize
 from .patch import PatchConfig, PatchEncoder, PatchEncoding
-from .refine import RefineConfig, refine
+from .refine import RefineConfig, RefineResult, refine
 from .sketch import SketchConfig, SketchEncoder
 
 if TYPE_CHECKING:
@@ -60,6 +60,10 @@ class EncoderConfig:
     #: Rate control: aim the file at this many bytes (within 5 %) by choosing how many patch
     #: Gaussians survive pruning (None: the size follows from the settings).
     target_size: int | None = None
+    #: The sketch layer, a streaming viewer's first picture, ends within this share of the file:
+    #: when it would not, the sketch clusters of least importance per Gaussian go to the patch
+    #: (None: no limit; the no-retrain encoder only, see docs/RESULTS.md section 7).
+    max_sketch_share: float | None = 0.1
 
     def seeded(self) -> "EncoderConfig":
         """A copy whose stage configs carry ``seed``."""
@@ -136,40 +140,52 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
         control = control or RunControl()
         control.check_checkpoint()
         prepared = prepare_targets(cloud, config, dataset, control, progress, times)
-    sketch = encode_sketch(cloud, config, progress, times)
+    refined, found = refine_sketch(cloud, config, progress, times)
+    sketch = encode_sketch(cloud, refined, found, config, progress, times)
     metadata = {"encoder": "spcodec", "version": _version(), "source": source_name,
                 "settings": config.to_json()}
     writer = SceneWriter(cloud.sh_degree, sketch.clusters, metadata,
                          WriteOptions(codec=codec, gzip=config.gzip))
-    patch_cloud = cloud.subset(sketch.patch_idx)
     extra: dict = {}
     if prepared is None:
+        patch_encoder = PatchEncoder(config.patch, seed=config.seed)
         t = time.perf_counter()
-        stage = progress("patch", None)
-        patch = PatchEncoder(config.patch, seed=config.seed).encode(patch_cloud)
-        rows = np.arange(len(patch_cloud))
-        stage.done(f"{len(patch_cloud)} Gaussians in {len(patch.layers)} layers")
-        times["patch"] = time.perf_counter() - t
+        stage = progress("importance", None)
+        importance = patch_encoder.measure_importance(cloud)  # whole scene: the sketch occludes
+        stage.done(_importance_summary(config.patch))
+        times["importance"] = time.perf_counter() - t
+        patch, data = _encode_patch(cloud, sketch, writer, importance, patch_encoder, progress,
+                                    times)
+        moved = 0
+        while refined is not None and sketch.clusters and config.max_sketch_share is not None:
+            keep = _clusters_to_keep(data, refined, importance, config.max_sketch_share)
+            if keep is None:
+                break
+            before = len(refined.patch)
+            refined = _keep_clusters(refined, keep)
+            moved += len(refined.patch) - before
+            sketch = encode_sketch(cloud, refined, found, config, progress, times)
+            writer = dataclasses.replace(writer, sketch=sketch.clusters)
+            patch, data = _encode_patch(cloud, sketch, writer, importance, patch_encoder,
+                                        progress, times)
+        sketch.stats["moved_to_patch_for_share"] = moved
+        rows = np.arange(len(sketch.patch_idx))
     else:
         from .prune_retrain import encode_pruned_patch
 
-        choice = encode_pruned_patch(cloud, sketch, patch_cloud, writer, config, prepared,
-                                     dataset, control, progress, times)
+        choice = encode_pruned_patch(cloud, sketch, cloud.subset(sketch.patch_idx), writer,
+                                     config, prepared, dataset, control, progress, times)
         patch, rows, extra = choice.encoding, choice.rows, choice.stats
-
-    t = time.perf_counter()
-    stage = progress("write", None)
-    data = writer.write(patch)
+        data = _write(writer, patch, progress, times)
     patch_idx = sketch.patch_idx[rows]
     source = np.concatenate(sketch.sources + [patch_idx[o] for o in patch.order]).astype(np.int64) \
         if (sketch.sources or len(patch_idx)) else np.zeros(0, np.int64)
-    stage.done(f"{len(data)} bytes")
-    times["write"] = time.perf_counter() - t
 
     stats = {
         "gaussians": len(cloud), "sketch_gaussians": int(sum(map(len, sketch.sources))),
         "patch_gaussians": int(len(patch_idx)), "patch_layers": len(writer.scene(patch).patch_layers),
         "sketch": sketch.stats, "bytes": len(data), "sections": section_sizes(data),
+        "layer_ends": [layer["end_offset"] for layer in inspect(data).to_json()["layers"]],
         "seconds": times, **extra,
     }
     stats["sketch_error"] = sketch_error(data, cloud, source, stats["sketch_gaussians"])
@@ -218,12 +234,12 @@ class SketchOutcome:
     stats: dict
 
 
-def encode_sketch(cloud: GaussianCloud, config: EncoderConfig, progress: ProgressFactory,
-                  times: dict[str, float]) -> SketchOutcome:
-    """Categorize, refine and encode the sketch (nothing when ``use_sketch`` is off)."""
+def refine_sketch(cloud: GaussianCloud, config: EncoderConfig, progress: ProgressFactory,
+                  times: dict[str, float]) -> tuple[RefineResult | None, int]:
+    """Categorize and refine: the sketch clusters accepted and how many categorization found
+    (None and 0 when ``use_sketch`` is off)."""
     if not config.use_sketch:
-        return SketchOutcome([], [], np.arange(len(cloud)),
-                             {"clusters_found": 0, "clusters_accepted": 0})
+        return None, 0
     t = time.perf_counter()
     stage = progress("categorize", None)
     labels = categorize(cloud, config.categorize)
@@ -237,7 +253,16 @@ def encode_sketch(cloud: GaussianCloud, config: EncoderConfig, progress: Progres
     stage.done(f"{len(refined.clusters)} clusters accepted, "
                f"{refined.stats.sketch_gaussians} sketch Gaussians")
     times["refine"] = time.perf_counter() - t
+    return refined, found
 
+
+def encode_sketch(cloud: GaussianCloud, refined: RefineResult | None, found: int,
+                  config: EncoderConfig, progress: ProgressFactory, times: dict[str, float]
+                  ) -> SketchOutcome:
+    """Encode the refined clusters as sketch (nothing without them)."""
+    if refined is None:
+        return SketchOutcome([], [], np.arange(len(cloud)),
+                             {"clusters_found": 0, "clusters_accepted": 0})
     t = time.perf_counter()
     stage = progress("sketch", len(refined.clusters))
     sketch = SketchEncoder(config.sketch, config.refine).encode(cloud, refined, stage.update)
@@ -245,13 +270,37 @@ def encode_sketch(cloud: GaussianCloud, config: EncoderConfig, progress: Progres
     stage.done(f"{len(sketch.clusters)} clusters, {sum(map(len, sketch.sources))} Gaussians "
                f"(Draco step {sketch.step:.3g}, {sketch.stats['rejected_clusters']} clusters "
                f"and {sketch.stats['duplicates']} duplicates back to patch)")
-    times["sketch"] = time.perf_counter() - t
+    times["sketch"] = times.get("sketch", 0.0) + time.perf_counter() - t
     stats = {"clusters_found": found, "clusters_accepted": len(refined.clusters),
              "clusters_encoded": len(sketch.clusters), "draco_step": sketch.step,
              "scene_diameter": sketch.diameter, **sketch.stats,
              "refine": {"patch_by_reason": refined.stats.patch_by_reason,
                         "splits": refined.stats.splits, "fits": refined.stats.fits}}
     return SketchOutcome(sketch.clusters, sketch.sources, patch_idx, stats)
+
+
+def _encode_patch(cloud: GaussianCloud, sketch: SketchOutcome, writer: "SceneWriter",
+                  importance: np.ndarray, patch_encoder: PatchEncoder,
+                  progress: ProgressFactory, times: dict[str, float]
+                  ) -> tuple[PatchEncoding, bytes]:
+    """No-retrain patch layers of the Gaussians the sketch left, and the file they make."""
+    patch_idx = sketch.patch_idx
+    t = time.perf_counter()
+    stage = progress("patch", None)
+    patch = patch_encoder.encode(cloud.subset(patch_idx), importance[patch_idx])
+    stage.done(f"{len(patch_idx)} Gaussians in {len(patch.layers)} layers")
+    times["patch"] = times.get("patch", 0.0) + time.perf_counter() - t
+    return patch, _write(writer, patch, progress, times)
+
+
+def _write(writer: "SceneWriter", patch: PatchEncoding, progress: ProgressFactory,
+           times: dict[str, float]) -> bytes:
+    t = time.perf_counter()
+    stage = progress("write", None)
+    data = writer.write(patch)
+    stage.done(f"{len(data)} bytes")
+    times["write"] = times.get("write", 0.0) + time.perf_counter() - t
+    return data
 
 
 @dataclass
@@ -276,6 +325,54 @@ class SceneWriter:
     def decoded_sketch(self) -> GaussianCloud:
         """The sketch exactly as a decoder will see it (layer 0 of a sketch-only file)."""
         return decode_layers(self.write(None), max_layer=0).cloud
+
+
+def _clusters_to_keep(data: bytes, refined: RefineResult, importance: np.ndarray,
+                      max_share: float) -> list[int] | None:
+    """Which refined clusters to keep as sketch so that the sketch layer ends within
+    ``max_share`` of the file (None: it already does).
+
+    The clusters that do least for the picture (lowest mean importance) go to the patch first.
+    How many: with the sketch layer's fixed part H (header, metadata), sketch bytes S over K
+    Gaussians, and patch bytes P at p per Gaussian, keeping a fraction f of the sketch gives a
+    layer of H + fS in a file of H + fS + P + (1 - f)Kp; solve for the share, with a 3 % margin
+    for the difference between this estimate and the encoded result.
+    """
+    info = inspect(data).to_json()
+    first = info["layers"][0]
+    end, total = first.get("inner_end_offset", first["end_offset"]), info["file_size"]
+    stored_end = end if first["end_offset"] is None else first["end_offset"]
+    if stored_end <= max_share * info["stored_size"]:
+        return None
+    sketch_bytes = sum(sec["length"] for sec in info["sections"]
+                       if sec["type"].startswith("SKETCH"))
+    fixed, count = end - sketch_bytes, info["layers"][0]["gaussians"]
+    patch_bytes, patch_count = total - end, info["gaussians"] - count
+    per_patch = patch_bytes / patch_count if patch_count else sketch_bytes / max(count, 1)
+    share = 0.97 * max_share
+    fraction = (share * (fixed + patch_bytes + count * per_patch) - fixed) / \
+        (sketch_bytes * (1 - share) + share * count * per_patch)
+    sizes = np.array([len(c) for c in refined.clusters])
+    density = np.array([importance[c].mean() for c in refined.clusters])
+    order = np.argsort(-density, kind="stable")
+    kept = order[np.cumsum(sizes[order]) <= max(fraction, 0.0) * sizes.sum()]
+    return sorted(int(i) for i in kept) if len(kept) < len(sizes) else None
+
+
+def _keep_clusters(refined: RefineResult, keep: list[int]) -> RefineResult:
+    """``refined`` with only the clusters ``keep``; the others join its patch set."""
+    kept = set(keep)
+    dropped = [c for i, c in enumerate(refined.clusters) if i not in kept]
+    patch = np.sort(np.concatenate([refined.patch, *dropped])) if dropped else refined.patch
+    return dataclasses.replace(refined, clusters=[refined.clusters[i] for i in keep],
+                               fits=[refined.fits[i] for i in keep], patch=patch)
+
+
+def _importance_summary(patch: PatchConfig) -> str:
+    if patch.importance != "blend":
+        return f"{patch.importance} proxy"
+    width, height = patch.importance_resolution
+    return f"blend weights over {patch.importance_views} training views of {width}x{height}"
 
 
 def section_sizes(data: bytes) -> dict[str, int]:

@@ -248,7 +248,9 @@ def view_coverage(cloud: GaussianCloud, camera: Camera, bounds: SceneBounds | No
     cv = np.floor(uv[near, 1] / (camera.height / rows)).astype(np.int64)
     radius = 2.0 * sigma[near] * camera.fx / depth[near] / cell
     density = -np.log1p(-alpha[near])
-    accumulated = np.bincount(*_cell_index(cu, cv, cols, rows, density), minlength=rows * cols)
+    # float even when no stamp falls on the grid (bincount of nothing is an int64 array)
+    accumulated = np.bincount(*_cell_index(cu, cv, cols, rows, density),
+                              minlength=rows * cols).astype(np.float64)
     wide = radius >= 0.5  # only these reach beyond their own cell; usually a small minority
     cu, cv, radius, density = cu[wide], cv[wide], radius[wide], density[wide]
     reach = int(min(3, np.ceil(radius.max(initial=0.0))))

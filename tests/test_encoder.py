@@ -30,7 +30,9 @@ def sketch_mask(result, n: int) -> np.ndarray:
 @pytest.mark.parametrize("seed", [0, 1])
 def test_structured_gaussians_become_sketch(seed):
     scene = make_scene(seed)
-    result = encode(scene.cloud, FAST)
+    # structure recovery itself, without the cap on the sketch layer's share of the file (the
+    # synthetic curves are 60 % of the Gaussians and would fill half the file)
+    result = encode(scene.cloud, dataclasses.replace(FAST, max_sketch_share=None))
     sketch = sketch_mask(result, len(scene.cloud))
     true_pos = (sketch & scene.structured).sum()
     assert true_pos / sketch.sum() >= 0.9, "precision"
@@ -73,6 +75,24 @@ def test_scene_without_structure_is_all_patch_and_valid():
     assert info["layers"][0]["gaussians"] == 0 and len(spcodec.decode(result.data)) == 3000
     tiny = blobs.subset(rng.choice(3000, 5, replace=False))
     assert len(spcodec.decode(encode(tiny, FAST).data)) == 5
+
+
+def test_the_sketch_layer_is_capped_to_its_share_of_the_file():
+    """The first picture of a streaming viewer comes after at most max_sketch_share of the bytes:
+    sketch clusters of least importance go to the patch until it does."""
+    scene = make_scene(5, curves=16, per_curve=300, blobs=1200)
+    free = encode(scene.cloud, dataclasses.replace(FAST, max_sketch_share=None))
+    capped = encode(scene.cloud, dataclasses.replace(FAST, max_sketch_share=0.1))
+
+    def first_share(result) -> float:
+        return result.stats["layer_ends"][0] / result.stats["bytes"]
+
+    assert first_share(free) > 0.15 and free.stats["sketch"]["moved_to_patch_for_share"] == 0
+    assert 0.0 < first_share(capped) <= 0.1
+    moved = capped.stats["sketch"]["moved_to_patch_for_share"]
+    assert moved > 0 and capped.stats["sketch_gaussians"] <= free.stats["sketch_gaussians"] - moved
+    assert len(spcodec.decode(capped.data)) == len(scene.cloud)
+    assert np.array_equal(np.sort(capped.source_index), np.arange(len(scene.cloud)))
 
 
 @pytest.mark.parametrize("sh_degree", [0, 1, 2])

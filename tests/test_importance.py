@@ -76,3 +76,17 @@ def test_weights_add_over_views_and_follow_the_cloud() -> None:
     parts = blend_weights(params, cams[:1]) + blend_weights(params, cams[1:])
     np.testing.assert_allclose(both, parts, rtol=1e-6)
     np.testing.assert_allclose(blend_weights(params.to_cloud(), cams), both, rtol=1e-6)
+
+
+def test_training_view_weights_use_training_views_on_any_number_of_threads() -> None:
+    from spcodec.encoder.importance import training_view_weights
+    from spcodec.encoder.views import sample_views
+
+    cloud = random_scene(200, degree=2, seed=5, dtype=torch.float32).to_cloud()
+    one = training_view_weights(cloud, 3, (48, 36), seed=2)
+    cams = sample_views(cloud, 3, (48, 36), split="train", seed=2)
+    np.testing.assert_allclose(one, blend_weights(cloud, cams), rtol=1e-5, atol=1e-9)
+    np.testing.assert_array_equal(training_view_weights(cloud, 3, (48, 36), seed=2, jobs=2), one)
+    eval_cams = sample_views(cloud, 3, (48, 36), split="eval", seed=2)
+    assert not np.allclose(blend_weights(cloud, eval_cams), one)
+    assert (one > 0).sum() > 50

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 import spcodec
 from spcodec.attributes import PatchAttribute
+from spcodec.cloud import GaussianCloud
 from spcodec.encoder.morton import morton_codes
 from spcodec.encoder.patch import (
     PatchConfig,
@@ -114,3 +117,24 @@ def test_encode_is_deterministic_for_a_seed(cloud):
         np.testing.assert_array_equal(x.entries, y.entries)
     for x, y in zip(a.order, b.order):
         np.testing.assert_array_equal(x, y)
+
+
+def test_blend_importance_sends_a_hidden_gaussian_last_where_footprint_sent_it_first():
+    """A large opaque Gaussian inside a closed shell: the footprint proxy ranks it first, the blend
+    weight over sampled views (which never see it) ranks it last."""
+    rng = np.random.default_rng(0)
+    shell = rng.normal(size=(3000, 3))
+    shell /= np.linalg.norm(shell, axis=1, keepdims=True)
+    cloud = GaussianCloud.zeros(len(shell) + 1, 0)
+    cloud.means[:-1] = shell
+    cloud.scales[:] = np.log(0.08)
+    cloud.scales[-1] = np.log(0.2)  # 3 sigma stays inside the shell
+    cloud.opacities[:] = 6.0
+    config = PatchConfig(kmeans_iterations=10, kmeans_samples=20_000, importance_views=4,
+                         importance_resolution=(64, 48))
+    hidden = len(cloud) - 1
+    blend = PatchEncoder(config).measure_importance(cloud)
+    assert blend[hidden] < 1e-3 * np.median(blend[:-1]) and (blend[:-1] > 0).mean() > 0.5
+    footprint = PatchEncoder(dataclasses.replace(config, importance="footprint"))
+    assert hidden in footprint.encode(cloud).order[0]
+    assert hidden in PatchEncoder(config).encode(cloud).order[-1]

@@ -182,6 +182,16 @@ def test_coverage_flags_views_of_empty_space_and_from_inside() -> None:
     assert check.robust_in_front < 0.9 and not check.passes(0.15)
 
 
+def test_coverage_counts_wide_gaussians_whose_centres_are_off_the_grid() -> None:
+    """Only the stamps around the centres land on the grid (this once failed on int64 cells)."""
+    points = np.array([[2.0, 0.0, 0.0], [2.0, 0.3, 0.1], [2.1, -0.3, 0.0]])
+    cloud = _cloud(points, 0.3)
+    camera = Camera.look_at(np.array([0.0, 0.0, -3.0]), np.zeros(3), np.array([0.0, -1.0, 0.0]),
+                            *RES, math.radians(50))
+    assert (camera.project(points)[0][:, 0] > RES[0]).all()
+    assert view_coverage(cloud, camera, robust_bounds(cloud)).coverage > 0.0
+
+
 def test_bad_views_are_adjusted_towards_better_elevations() -> None:
     """A flat disc seen edge-on covers almost nothing; the sampler must tilt the view up."""
     rng = np.random.default_rng(1)

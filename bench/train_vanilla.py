@@ -33,6 +33,7 @@ import math
 import os
 import platform
 import resource
+import shlex
 import subprocess
 import sys
 import time
@@ -182,11 +183,10 @@ def record(args: argparse.Namespace, config: VanillaConfig, targets: Targets, ru
     camera = targets.views[0].camera
     events = run.densifier.events
     return {
-        "command": " ".join([Path(sys.executable).name] + sys.argv),
+        "command": "python bench/train_vanilla.py " + shlex.join(args.argv),
         "dataset": str(Path(args.dataset).resolve()), "downscale": args.downscale,
         "resolution": [camera.width, camera.height], "training_views": len(targets.views),
-        "config": asdict(config), "sh_every": config.sh_every,
-        "densify_used": asdict(config.densify), "extent": targets.extent,
+        "config": asdict(config), "sh_every": config.sh_every, "extent": targets.extent,
         "gaussians": len(run.cloud), "training_seconds": round(run.seconds, 1),
         "seconds_per_step": round(run.seconds / config.iterations, 4),
         "final_train_loss": round(run.final_loss, 5),
@@ -228,6 +228,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--no-eval", action="store_true", help="skip the test-split evaluation")
     p.add_argument("--quiet", action="store_true")
     args = p.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
     if args.iterations < 1 or args.init_points < 1 or args.downscale < 1 \
             or not args.grad_threshold > 0:
         p.error("--iterations, --init-points, --downscale and --grad-threshold must be positive")

@@ -283,8 +283,8 @@ def test_train_vanilla_writes_a_model_and_its_record(tmp_path):
     assert len(model) == doc["gaussians"] != 300 and model.sh_degree == 1
     assert json.loads(out.with_suffix(".json").read_text()) == doc
     assert doc["resolution"] == [32, 32] and doc["test"]["views"] == 2
-    assert doc["sh_every"] == 3 and doc["densify_used"]["every"] == 1
-    assert doc["opacity_resets"] == [9, 18, 27, 36]
+    assert doc["sh_every"] == 3 and doc["config"]["densify"]["every"] == 1
+    assert doc["opacity_resets"] == [9, 18, 27, 36] and "--iterations 90" in doc["command"]
     assert [e["step"] for e in doc["densification"]] == list(range(3, 45))
     again = evaluate_against_dataset(model, tmp_path / "data", EvalConfig(device="cpu"))
     assert doc["test"]["psnr"] == pytest.approx(again.psnr, abs=1e-3)

@@ -179,18 +179,16 @@ def test_split_children_are_drawn_from_the_parent():
     np.testing.assert_allclose(local_std.numpy(), [0.4, 0.1, 0.02], rtol=0.05)
 
 
-def test_oversized_gaussians_are_pruned_only_after_the_first_reset():
+def test_oversized_gaussians_are_pruned_only_after_the_first_periodic_reset():
     cloud = cloud_of(3)
     cloud.scales[:] = np.log([[0.05] * 3, [0.5] * 3, [0.05] * 3])
-    config = DensifyConfig(max_screen_radius=20.0, max_world_scale=0.1)
-    for reset, expected in ((False, 3), (True, 1)):
+    config = DensifyConfig(reset_every=300, max_screen_radius=20.0, max_world_scale=0.1)
+    for step, expected in ((300, 3), (310, 1)):
         model = FreeGaussians(cloud, "cpu")
         densifier = Densifier(config, extent=2.0)
         densifier.reset_statistics(3, torch.device("cpu"))
-        densifier.max_radius += torch.tensor([5.0, 5.0, 25.0])
-        if reset:
-            densifier.resets.append(300)
-        assert densifier.densify(model, 600).total == expected
+        densifier.max_radius += torch.tensor([5.0, 5.0, 25.0])  # 1: too large in the world
+        assert densifier.densify(model, step).total == expected  # 2: too large on screen
 
 
 def test_statistics_are_view_space_gradients_in_ndc_of_the_drawn_gaussians():

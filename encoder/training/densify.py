@@ -13,9 +13,9 @@ default strategy run it:
   ``percent_dense`` of the scene extent) are **cloned** (an exact copy, which the optimizer then
   pulls apart); large ones are **split** into ``split_into`` children drawn from the Gaussian
   itself, their scales divided by ``split_scale_divisor`` (INRIA's ``0.8 * N``).
-* **Prune** at the same time: opacity below ``min_opacity``, and after the first opacity reset
-  also a screen radius above ``max_screen_radius`` pixels or a world scale above
-  ``max_world_scale`` times the extent.
+* **Prune** at the same time: opacity below ``min_opacity``, and after the first periodic
+  opacity reset (step ``reset_every``) also a screen radius above ``max_screen_radius`` pixels
+  (since the last densification) or a world scale above ``max_world_scale`` times the extent.
 * **Reset opacities** to at most ``reset_opacity`` every ``reset_every`` steps (and at ``start``
   when ``reset_at_start``, which INRIA does for white backgrounds), so floaters must earn their
   opacity back or be pruned.
@@ -63,8 +63,8 @@ class DensifyConfig:
     percent_dense: float = 0.01
     split_into: int = 2
     split_scale_divisor: float = 1.6
-    #: After the first reset, pruned when larger on screen (pixels) or in the world (x extent);
-    #: None turns the screen rule off.
+    #: After step ``reset_every``, pruned when larger on screen (pixels) or in the world
+    #: (x extent); None turns the screen rule off.
     max_screen_radius: float | None = 20.0
     max_world_scale: float = 0.1
 
@@ -167,7 +167,7 @@ class Densifier:
             added = len(model) - n
             remove = torch.cat([split, split.new_zeros(added)])
             remove |= torch.sigmoid(model.tensors["opacities"]) < c.min_opacity
-            if self.resets:  # INRIA prunes oversized Gaussians once opacities were reset
+            if step > c.reset_every:  # INRIA: oversized ones go after the first periodic reset
                 largest = model.tensors["scales"].max(dim=1).values.exp()
                 remove |= largest > c.max_world_scale * self.extent
                 if c.max_screen_radius is not None:

@@ -59,6 +59,9 @@ class Bounded:
 SEED = Bounded(int, 0, 2**32 - 1)
 """Seeds of numpy and scikit-learn: non-negative and below 2**32."""
 MAX_LAYER = Bounded(int, 0)
+PORT = Bounded(int, 0, 65535)
+THROTTLE = Bounded(float, 0, exclusive=True)
+"""``serve --throttle`` in kbit/s: any positive speed."""
 PATCH_LAYERS_DEFAULT = 3
 """``PatchConfig.layers``, for --help without importing the encoder; a test keeps them equal."""
 RETRAIN_DEFAULTS = {"iterations": 3000, "finish_iterations": 600, "views": 48, "resolution": 400}
@@ -78,24 +81,31 @@ def command(name: str, help_text: str, configure: Configure):
 # --------------------------------------------------------------------------------- decode
 def _add_decode(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", help="an .spc file (gzip-wrapped or not), or a prefix of one")
-    p.add_argument("-o", "--output", required=True, help="the PLY to write (INRIA layout)")
+    p.add_argument("-o", "--output", required=True,
+                   help="the file to write: a 3DGS PLY (INRIA layout), or with a .glb name a "
+                   "binary glTF with KHR_gaussian_splatting")
     p.add_argument("--max-layer", type=MAX_LAYER, default=None, metavar="K",
                    help="decode layers 0..K only (0 = the sketch layer alone); %(type)s "
                    "(default: every layer)")
 
 
-@command("decode", "decode an .spc file into a 3DGS PLY", _add_decode)
+@command("decode", "decode an .spc file into a 3DGS PLY or a glTF (.glb)", _add_decode)
 def cmd_decode(args: argparse.Namespace) -> int:
     from .decoder import decode_layers
     from .fileio import check_writable
+    from .gltf import write_glb
     from .ply import write_ply
 
+    suffix = Path(args.output).suffix.lower()
+    if suffix == ".gltf":
+        raise UsageError(f"cannot write {args.output}: name it .glb (binary glTF); text .gltf with "
+                         "a separate buffer is not supported")
     check_writable(args.output)
     start = time.perf_counter()
     result = decode_layers(args.input, max_layer=args.max_layer)
     elapsed = time.perf_counter() - start
     cloud = result.cloud
-    write_ply(args.output, cloud)
+    (write_glb if suffix == ".glb" else write_ply)(args.output, cloud)
     counts = ", ".join(f"L{layer.index} {len(layer.cloud)}" for layer in result.layers)
     print(f"decoded {len(cloud)} Gaussians ({counts}) in {elapsed * 1000:.0f} ms -> {args.output}")
     return EXIT_OK
@@ -147,6 +157,48 @@ def _partial_file_note(doc: dict) -> str:
         return f"PREFIX: the data ends at a layer boundary, {where}; {whole} and decode"
     hint = f" (decode them with --max-layer {k - 1})" if k else ""
     return f"TRUNCATED: the data ends inside layer {k}, {where}; {whole}{hint}"
+
+
+# ---------------------------------------------------------------------------------- serve
+def _add_serve(p: argparse.ArgumentParser) -> None:
+    p.add_argument("input", help="the scene to show at /: an .spc (streamed layer by layer), or a "
+                   ".ply or .glb (loaded whole, for comparison)")
+    p.add_argument("--port", type=PORT, default=8000,
+                   help="TCP port: %(type)s (default: %(default)s; 0 = any free port)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to bind (default 127.0.0.1: this machine only)")
+    p.add_argument("--throttle", type=THROTTLE, metavar="KBPS", default=None,
+                   help="send the scene at this many kilobits per second, %(type)s (e.g. 20000 "
+                   "for 20 Mbit/s), to watch layers arrive as on a slow connection (default: "
+                   "no limit)")
+    p.add_argument("--log", action="store_true",
+                   help="log every request on stderr (default: quiet)")
+
+
+@command("serve", "serve the streaming web viewer and an .spc (with HTTP range requests)",
+         _add_serve)
+def cmd_serve(args: argparse.Namespace) -> int:
+    from .serve import make_server, viewer_missing
+
+    server = make_server([args.input], host=args.host, port=args.port,
+                         throttle_kbps=args.throttle, log=args.log)
+    host, port = server.server_address[:2]
+    shown = f"[{host}]" if ":" in host else host
+    problem = viewer_missing()
+    if problem:
+        print(f"spcodec: warning: {problem}; serving the file alone", file=sys.stderr)
+    if host not in ("127.0.0.1", "::1", "localhost"):
+        print(f"spcodec: warning: listening on {host}: other machines can fetch the scene and the "
+              "viewer", file=sys.stderr)
+    speed = f", throttled to {args.throttle:g} kbit/s" if args.throttle else ""
+    print(f"serving {args.input}{speed}: open http://{shown}:{port}/  (Ctrl-C stops)", flush=True)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        print("stopped")
+    finally:
+        server.server_close()
+    return EXIT_OK
 
 
 # ----------------------------------------------------------------------------------- demo

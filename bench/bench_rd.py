@@ -1,0 +1,194 @@
+"""Rate-distortion curves: S&P++ retrained, Prune&Retrain, the no-retrain presets and SPZ, in one run.
+
+For each scene every method is encoded from the same input PLY and judged the same way:
+
+* **distillation scenes** (a PLY only): renders of the decoded file against renders of the input
+  at the 8 held-out sampled views of 400x400 (``spcodec eval --reference``);
+* **lego** (dataset mode): the model trained by ``bench/train_vanilla.py`` retrained against the
+  dataset's training images and judged against its test images (``spcodec eval --dataset``).
+
+Methods (the paper's section "Comparison Methods"):
+
+* ``sp``: S&P++, ``spcodec encode`` (sketch + pruned and retrained patch, quantization-aware
+  finish) at each ``--factors`` patch downsample;
+* ``pr``: Prune&Retrain, every Gaussian treated as patch (``--no-sketch``) and pruned uniformly
+  (``--prune uniform``) by the same factors, same retraining budget;
+* ``noretrain``: the three no-retrain presets;
+* ``spz``: a real SPZ writer (PlayCanvas splat-transform on PATH or ``$SPLAT_TRANSFORM``, else
+  gsply), decoded back and judged like the rest.
+
+Every encode runs as its own ``spcodec encode`` process under ``/usr/bin/time`` (peak memory
+per run) with ``--stats`` (time per stage). Rows are appended to a JSON file as they finish, so an
+interrupted sweep continues where it stopped; ``--plot`` draws one PSNR-vs-size figure per scene
+(log size axis) into ``docs/results/``. matplotlib is needed for the plots only (install by hand).
+
+    python bench/bench_rd.py --json rd.json [--scenes fourth_st donut guitar kacytran lego]
+        [--methods sp pr noretrain spz] [--factors 2 4 8 16] [--iterations 3000]
+        [--lego-model /path/lego.ply --lego-downscale 4]
+    python bench/bench_rd.py --json rd.json --plot docs/results
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import spcodec
+from spcodec.encoder.evaluate import EvalConfig, evaluate_against_dataset, evaluate_against_reference
+
+from bench_quality import SCENES, spz_round_trip  # bench/ is on sys.path
+from scenes import data_dir
+
+LEGO_DATASET = "nerf_synthetic_lego"
+METHODS = ("sp", "pr", "noretrain", "spz")
+LABELS = {"sp": "S&P++ (retrained)", "pr": "Prune&Retrain", "noretrain": "no-retrain presets",
+          "spz": "SPZ", "original": "original"}
+
+
+def scene_setup(name: str, args) -> dict:
+    """Input PLY, view options and how to judge a scene."""
+    if name == "lego":
+        if not args.lego_model:
+            raise SystemExit("lego needs --lego-model (a model made by bench/train_vanilla.py)")
+        return {"ply": Path(args.lego_model), "up": "-y", "antialiased": False,
+                "dataset": data_dir() / LEGO_DATASET, "downscale": args.lego_downscale}
+    rel, up, antialiased = SCENES[name]
+    return {"ply": data_dir() / rel, "up": up, "antialiased": antialiased, "dataset": None,
+            "downscale": 1}
+
+
+def judge(decoded: spcodec.GaussianCloud, original: spcodec.GaussianCloud, setup: dict) -> dict:
+    """PSNR/SSIM as ``spcodec eval`` measures them for this scene."""
+    if setup["dataset"] is not None:
+        report = evaluate_against_dataset(decoded, setup["dataset"], EvalConfig(
+            downscale=setup["downscale"], device="cpu"))
+    else:
+        report = evaluate_against_reference(decoded, original, EvalConfig(
+            device="cpu", up=setup["up"], antialiased=setup["antialiased"]))
+    return {"psnr": report.psnr, "ssim": report.ssim}
+
+
+def encode_args(method: str, param, setup: dict, args) -> list[str]:
+    """The ``spcodec encode`` options of one point of a curve."""
+    view = [f"--up={setup['up']}"] + (["--antialiased"] if setup["antialiased"] else [])
+    if method == "noretrain":
+        return ["--no-retrain", "--preset", param]
+    common = ["--patch-downsample", str(param), "--iterations", str(args.iterations),
+              "--threads", str(args.threads), "--device", "cpu", *view]
+    if setup["dataset"] is not None:
+        common += ["--dataset", str(setup["dataset"]), "--downscale", str(setup["downscale"])]
+    if method == "pr":
+        common += ["--no-sketch", "--prune", "uniform"]
+    return common
+
+
+def run_encode(ply: Path, extra: list[str], work: Path) -> tuple[Path, dict, float]:
+    """One ``spcodec encode`` process: the file, its statistics and its peak RSS (MiB)."""
+    out, stats, mem = work / "out.spc", work / "stats.json", work / "time.txt"
+    for stale in (out, stats, Path(str(out) + ".ckpt")):
+        stale.unlink(missing_ok=True)
+    cmd = ["/usr/bin/time", "-f", "%M", "-o", str(mem), sys.executable, "-m", "spcodec.cli",
+           "encode", str(ply), "-o", str(out), "--stats", str(stats), "--quiet", *extra]
+    subprocess.run(cmd, check=True)
+    return out, json.loads(stats.read_text()), int(mem.read_text().split()[-1]) / 1024
+
+
+def sweep(args) -> None:
+    rows = json.loads(args.json.read_text()) if args.json.exists() else []
+    done = {(r["scene"], r["method"], str(r["param"])) for r in rows}
+
+    def record(row: dict) -> None:
+        rows.append(row)
+        args.json.write_text(json.dumps(rows, indent=2))
+        print(f"{row['scene']:>10} {row['method']:>9} {str(row['param']):>8}: "
+              f"{row['bytes']:>10,} B  {row['psnr']:6.2f} dB  {row.get('seconds') or 0:7.1f} s",
+              flush=True)
+
+    for name in args.scenes:
+        setup = scene_setup(name, args)
+        original = spcodec.read_ply(setup["ply"])
+        ply_bytes = setup["ply"].stat().st_size
+        if setup["dataset"] is not None and (name, "original", "-") not in done:
+            record(dict(scene=name, method="original", param="-", bytes=ply_bytes,
+                        **judge(original, original, setup), gaussians=len(original)))
+        points = {"sp": args.factors, "pr": args.factors,
+                  "noretrain": ["lowrate", "balanced", "highrate"], "spz": ["-"]}
+        for method in args.methods:
+            for param in points[method]:
+                if (name, method, str(param)) in done:
+                    continue
+                with tempfile.TemporaryDirectory() as tmp:
+                    if method == "spz":
+                        tool, size, decoded = spz_round_trip(setup["ply"], Path(tmp))
+                        record(dict(scene=name, method=method, param=tool, bytes=size,
+                                    **judge(decoded, original, setup), ply=ply_bytes))
+                        continue
+                    start = time.perf_counter()
+                    out, stats, peak = run_encode(setup["ply"],
+                                                  encode_args(method, param, setup, args),
+                                                  Path(tmp))
+                    seconds = time.perf_counter() - start
+                    decoded = spcodec.decode(out)
+                    record(dict(scene=name, method=method, param=param, bytes=out.stat().st_size,
+                                **judge(decoded, original, setup), seconds=seconds,
+                                stages=stats["seconds"], peak_mib=peak, ply=ply_bytes,
+                                gaussians=len(decoded), sketch=stats["sketch_gaussians"],
+                                reported=stats.get("quality"), retrain=stats.get("retrain")))
+
+
+def plot(args) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = json.loads(args.json.read_text())
+    args.plot.mkdir(parents=True, exist_ok=True)
+    styles = {"sp": ("o-", "C0"), "pr": ("s--", "C1"), "noretrain": ("^:", "C2"),
+              "spz": ("*", "C3"), "original": ("D", "k")}
+    for name in dict.fromkeys(r["scene"] for r in rows):
+        fig, ax = plt.subplots(figsize=(6, 4.2), dpi=120)
+        for method, (style, colour) in styles.items():
+            pts = sorted((r["bytes"], r["psnr"]) for r in rows
+                         if r["scene"] == name and r["method"] == method)
+            if pts:
+                ax.plot([p[0] / 1e6 for p in pts], [p[1] for p in pts], style, color=colour,
+                        label=LABELS[method], markersize=9 if method == "spz" else 5)
+        ax.set_xscale("log")
+        ax.set_xlabel("file size (MB, log scale)")
+        against = "test images" if name == "lego" else "renders of the original"
+        ax.set_ylabel(f"PSNR (dB) against {against}")
+        ax.set_title(name)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(args.plot / f"rd_{name}.png")
+        plt.close(fig)
+        print(f"wrote {args.plot / f'rd_{name}.png'}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--json", type=Path, required=True, help="rows, appended as runs finish")
+    ap.add_argument("--scenes", nargs="+", default=["fourth_st", "donut", "guitar", "kacytran"])
+    ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
+    ap.add_argument("--factors", nargs="+", type=float, default=[2, 4, 8, 16])
+    ap.add_argument("--iterations", type=int, default=3000)
+    ap.add_argument("--threads", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--lego-model", help="the model bench/train_vanilla.py wrote")
+    ap.add_argument("--lego-downscale", type=int, default=4)
+    ap.add_argument("--plot", type=Path, help="draw the figures into this folder and exit")
+    args = ap.parse_args()
+    if args.plot:
+        plot(args)
+    else:
+        sweep(args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,224 @@
+"""The streaming viewer (web/viewer) in headless Chromium, against our own decoder's output.
+
+The page streams an .spc with range requests from ``spcodec serve`` and renders each layer with
+PlayCanvas's GSplat component. These tests check that it shows layer 0 and then every layer, that
+the picture is not blank, that its full-file render matches PlayCanvas rendering the PLY that
+``spcodec decode`` writes (and the .glb, through PlayCanvas's glTF loader) at the same camera, that
+a throttled connection shows layer 0 long before the file has arrived, and that a corrupt file is
+reported with its spec error code. They skip, saying why, where node, the npm packages or Chromium
+are missing (``.ci/run`` installs them when it can).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+import spcodec
+from spcodec.cli import main
+
+from viewer_harness import VIEWER, drive, missing_tools, page_url, serving
+
+pytestmark = pytest.mark.browser
+
+PSNR_FLOOR_DB = 45.0
+
+
+def require(needs_decoder: bool = True) -> None:
+    reason = missing_tools(needs_decoder)
+    if reason:
+        pytest.skip(reason)
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    """A small structured scene, encoded by our encoder (a sketch of curves and three patch layers
+    of blobs), with its decoded PLY and GLB beside it."""
+    require()
+    from spcodec.encoder.pipeline import EncoderConfig, encode
+    from spcodec.synthetic import make_scene
+
+    folder = tmp_path_factory.mktemp("viewer")
+    spc = folder / "scene.spc"
+    spc.write_bytes(encode(make_scene(seed=1, curves=8, per_curve=300, blobs=4000).cloud,
+                           EncoderConfig(n_jobs=1, seed=0)).data)
+    for suffix in (".ply", ".glb"):
+        assert main(["decode", str(spc), "-o", str(spc.with_suffix(suffix))]) == 0
+    info = spcodec.inspect(spc).to_json()
+    assert len(info["layers"]) >= 3 and info["layers"][0]["gaussians"] > 0
+    return spc, info
+
+
+def image(path) -> np.ndarray:
+    from spcodec.encoder.images import read_image
+    return read_image(path)
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    from spcodec.encoder.metrics import psnr as metric
+    return metric(a, b)
+
+
+def lit_share(picture: np.ndarray) -> float:
+    """Fraction of pixels that are not (nearly) the black background."""
+    return float((picture.max(axis=2) > 0.02).mean())
+
+
+def visit(url: str, *captures: tuple[str, object]) -> dict:
+    report = drive([{"url": url, "captures": [{"when": w, "path": str(p) if p else None}
+                                              for w, p in captures]}])[0]
+    assert report["error"] is None, (report["error"], report["console"][-5:])
+    return report
+
+
+def test_viewer_unit_tests_pass_under_node():
+    """The page's range loader and array layout, under node alone (no browser, no packages)."""
+    if shutil.which("node") is None:
+        pytest.skip("node is not installed")
+    done = subprocess.run(["node", "--test", *sorted(str(p) for p in (VIEWER / "test").glob("*.test.mjs"))],
+                          capture_output=True, text=True, timeout=300, cwd=VIEWER)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-2000:]
+
+
+def khronos_validation(path) -> dict:
+    done = subprocess.run(["node", str(VIEWER / "test" / "validate-gltf.mjs"), str(path)],
+                          capture_output=True, text=True, timeout=120, cwd=VIEWER)
+    assert done.returncode == 0, done.stderr[-2000:]
+    return json.loads(done.stdout)["issues"]
+
+
+def test_glb_passes_the_khronos_validator(tmp_path):
+    """Everything but the extension itself, which the released validator predates, validates; a
+    wrong POSITION bound is caught, so the check can fail."""
+    if shutil.which("node") is None or not (VIEWER / "node_modules" / "gltf-validator").is_dir():
+        pytest.skip("node or the gltf-validator package (npm ci in web/viewer) is missing")
+    from spcodec.gltf import EXTENSION, glb_bytes
+    from spcodec.synthetic import make_scene
+
+    cloud = make_scene(seed=2, curves=2, per_curve=50, blobs=200).cloud
+    good = tmp_path / "good.glb"
+    good.write_bytes(glb_bytes(cloud))
+    issues = khronos_validation(good)
+    unknown_names = [m for m in issues["messages"] if m["code"] == "MESH_PRIMITIVE_INVALID_ATTRIBUTE"]
+    assert len(unknown_names) == issues["numErrors"] == 3 + (cloud.sh_degree + 1) ** 2  # not POSITION
+    assert all(f"/attributes/{EXTENSION}:" in m["pointer"] for m in unknown_names)
+    assert {m["code"] for m in issues["messages"]} <= {"MESH_PRIMITIVE_INVALID_ATTRIBUTE",
+                                                       "UNSUPPORTED_EXTENSION"}
+    data = bytearray(good.read_bytes())
+    at = data.index(b'"min":[') + len(b'"min":[')
+    data[at:at + 1] = b"9" if data[at:at + 1] != b"9" else b"8"  # a wrong lower bound
+    bad = tmp_path / "bad.glb"
+    bad.write_bytes(bytes(data))
+    assert "ACCESSOR_MIN_MISMATCH" in {m["code"] for m in khronos_validation(bad)["messages"]}
+
+
+def test_page_shows_layer_0_then_every_layer(scene, tmp_path):
+    spc, info = scene
+    with serving([spc]) as base:
+        report = visit(page_url(base, spc), ("layers:1", None), ("complete", tmp_path / "all.png"))
+        camera = report["state"]["camera"]
+        sketch_only = visit(page_url(base, spc, camera=camera, maxLayer=0),
+                            ("complete", tmp_path / "l0.png"))
+    first, final = report["captures"][0]["state"], report["state"]
+    layers = info["layers"]
+    assert first["layersShown"] >= 1 and first["events"][0]["gaussians"] == layers[0]["gaussians"]
+    assert final["status"] == "complete" and final["mode"] == "ranges"
+    assert final["layerCount"] == final["layersShown"] == len(layers)
+    events = final["events"]
+    assert [e["index"] for e in events] == list(range(len(layers)))
+    assert [e["gaussians"] for e in events] == [layer["gaussians"] for layer in layers]
+    shown = [e["tShown"] for e in events]
+    assert shown == sorted(shown) and all(e["tDecoded"] <= e["tShown"] for e in events)
+    assert final["gaussians"] == info["gaussians"]
+    assert final["bytesLoaded"] == final["totalBytes"] == spc.stat().st_size
+    # after the header request, one range request per layer, each ending at a layer boundary
+    ranges = [(r["first"], r["last"], r["status"]) for r in final["requests"]]
+    assert all(status == 206 for _, _, status in ranges)
+    ends = [layer["end_offset"] for layer in layers]
+    assert [last + 1 for _, last, _ in ranges[-len(layers):]] == ends
+    # maxLayer=0 fetches the sketch alone; it is a picture, and the whole scene adds to it
+    alone = sketch_only["state"]
+    assert alone["layersShown"] == 1 and alone["gaussians"] == layers[0]["gaussians"]
+    assert alone["bytesLoaded"] == layers[0]["end_offset"]
+    sketch, whole = image(tmp_path / "l0.png"), image(tmp_path / "all.png")
+    assert lit_share(sketch) > 0.005 and lit_share(whole) > 0.05
+    assert lit_share(whole) > 2 * lit_share(sketch)
+
+
+def test_full_render_matches_playcanvas_rendering_our_ply_and_glb(scene, tmp_path):
+    spc, _ = scene
+    ply, glb = spc.with_suffix(".ply"), spc.with_suffix(".glb")
+    with serving([spc, ply, glb]) as base:
+        reference = visit(page_url(base, ply), ("complete", tmp_path / "ply.png"))
+        camera = reference["state"]["camera"]
+        ours = visit(page_url(base, spc, camera=camera), ("complete", tmp_path / "spc.png"))
+        gltf = visit(page_url(base, glb, camera=camera), ("complete", tmp_path / "glb.png"))
+    assert reference["state"]["gaussians"] == ours["state"]["gaussians"] == \
+        gltf["state"]["gaussians"] == len(spcodec.decode(spc))
+    assert ours["state"]["camera"] == camera == gltf["state"]["camera"]
+    ply_image = image(tmp_path / "ply.png")
+    assert lit_share(ply_image) > 0.05
+    assert psnr(ply_image, image(tmp_path / "spc.png")) >= PSNR_FLOOR_DB
+    assert psnr(ply_image, image(tmp_path / "glb.png")) >= PSNR_FLOOR_DB
+
+
+def test_throttled_stream_shows_layer_0_before_the_file_arrives(scene, tmp_path):
+    """At 160 kbit/s (20 kB/s) the file takes seconds; layer 0 must be on screen long before."""
+    spc, info = scene
+    size = spc.stat().st_size
+    with serving([spc], throttle_kbps=160) as base:
+        report = visit(page_url(base, spc), ("firstPicture", tmp_path / "first.png"),
+                       ("complete", tmp_path / "all.png"))
+    at_first, final = report["captures"][0]["state"], report["state"]
+    layer0_end = info["layers"][0]["end_offset"]
+    assert at_first["layersShown"] >= 1 and at_first["bytesAtFirstPicture"] == layer0_end
+    assert at_first["bytesLoaded"] < size  # the rest of the file had not arrived yet
+    assert final["tComplete"] >= 0.9 * size / 20_000 * 1000  # the throttle was in force
+    assert final["tFirstPicture"] < final["tComplete"] / 2
+    assert lit_share(image(tmp_path / "first.png")) > 0.005
+    assert final["layersShown"] == len(info["layers"])
+
+
+def test_gzip_wrapped_files_stream_too(scene, tmp_path):
+    """With the wrapper's layer offsets ([R-83]) the page still fetches layer by layer; without
+    them it reads one stream; either way every layer is shown."""
+    import gzip
+
+    from spcodec.codecs import gzip_wrap
+
+    spc, info = scene
+    inner = spc.read_bytes()
+    marked, plain = tmp_path / "marked.spc", tmp_path / "plain.spc"
+    marked.write_bytes(gzip_wrap(inner, [layer["end_offset"] for layer in info["layers"]]))
+    plain.write_bytes(gzip.compress(inner))
+    with serving([marked, plain]) as base:
+        reports = drive([{"url": page_url(base, path), "captures": [{"when": "complete"}]}
+                         for path in (marked, plain)])
+    for report, mode, path in zip(reports, ("ranges", "stream"), (marked, plain)):
+        assert report["error"] is None, report["error"]
+        state = report["state"]
+        assert state["mode"] == mode and state["layersShown"] == len(info["layers"])
+        assert state["gaussians"] == info["gaussians"]
+        assert state["bytesLoaded"] == state["totalBytes"] == path.stat().st_size
+    # one request per layer ending at the wrapper's recorded offsets, then the gzip trailer
+    ends = [layer["end_offset"] for layer in spcodec.inspect(marked).to_json()["layers"]]
+    requested = [r["last"] + 1 for r in reports[0]["state"]["requests"]]
+    assert requested[-len(ends) - 1:] == [*ends, marked.stat().st_size]
+
+
+def test_corrupt_file_is_reported_with_its_error_code(scene, tmp_path):
+    spc, info = scene
+    data = bytearray(spc.read_bytes())
+    data[info["layers"][1]["end_offset"] - 10] ^= 0xFF  # inside layer 1's last section
+    bad = tmp_path / "bad.spc"
+    bad.write_bytes(bytes(data))
+    with serving([bad]) as base:
+        report = drive([{"url": page_url(base, bad), "captures": [{"when": "complete"}],
+                         "timeoutMs": 60000}])[0]
+    state = report["state"]
+    assert state["status"] == "error" and state["error"]["code"] == "section-crc"
+    assert state["layersDecoded"] == 1  # layer 0 was decoded (and shown) before the bad layer

@@ -1,0 +1,287 @@
+// The streaming viewer: an .spc shown layer by layer as its bytes arrive, on PlayCanvas's GSplat
+// component. It also opens a 3DGS PLY (PlayCanvas's PLY loader) or a KHR_gaussian_splatting GLB
+// (PlayCanvas's glTF loader), so the same page and camera compare our decoder with those files.
+//
+// URL parameters:
+//   src=URL            the scene (.spc streams; .ply and .glb load whole)
+//   maxLayer=K         fetch and show layers 0..K only (.spc)
+//   width=W&height=H   fixed canvas resolution (default: fill the window)
+//   cam=x,y,z&target=x,y,z&up=x,y,z&fov=DEG   camera (default: framed on the first layer, -y up)
+//   capture=1          no overlay, and keep the frame of the first picture (tests, benchmark)
+//
+// Progress is shown on the page and kept in `window.spcViewer` (see `state` below), which the
+// browser tests and the benchmark read.
+
+import * as pc from 'playcanvas';
+import { browserDraco } from './draco-browser.js';
+import { createApp, frameWatcher } from './engine.js';
+import { streamSpc } from './ranges.js';
+import { frameBounds, robustBounds, toGSplatData } from './splats.js';
+
+const params = new URLSearchParams(location.search);
+const src = params.get('src');
+
+/** Everything the page knows about its progress. Times are ms from `tStart`, when loading the
+ * scene begins (the engine is up; the decoder's code is fetched after it). */
+const state = {
+  status: 'starting',  // starting | loading | complete | error
+  src,
+  kind: src ? kindOf(src) : null,
+  mode: null,  // for .spc: 'ranges' (one request per layer) or 'stream'
+  totalBytes: null,
+  bytesLoaded: 0,
+  layerCount: null,
+  layersDecoded: 0,
+  layersShown: 0,
+  gaussians: 0,
+  events: [],  // one per layer: {index, kind, gaussians, bytesLoaded, tDecoded, tShown}
+  requests: [],
+  error: null,
+  tStart: null,
+  tFirstPicture: null,  // the first non-empty layer on screen
+  tComplete: null,
+  bytesAtFirstPicture: null,  // bytes that layer needed (received when it was decoded)
+  layersInFirstPicture: null,
+  bytesWhenFirstPictureShown: null,
+  renderer: null,
+  camera: null,  // {position, target, up, fov} once placed: pass it back in the URL to reproduce a view
+};
+window.spcViewer = state;
+
+const hud = document.getElementById('hud');
+const canvas = document.getElementById('scene');
+
+function kindOf(url) {
+  const path = new URL(url, location.href).pathname.toLowerCase();
+  if (path.endsWith('.ply')) return 'ply';
+  if (path.endsWith('.glb')) return 'glb';
+  return 'spc';
+}
+
+function now() {
+  return performance.now() - state.tStart;
+}
+
+function formatBytes(n) {
+  if (n == null) return '?';
+  if (n < 1e3) return `${n} B`;
+  if (n < 1e6) return `${(n / 1e3).toFixed(1)} kB`;
+  return `${(n / 1e6).toFixed(2)} MB`;
+}
+
+function showProgress() {
+  const share = state.totalBytes ? ` (${(100 * state.bytesLoaded / state.totalBytes).toFixed(0)}%)` : '';
+  const lines = [
+    `${state.src ?? 'no scene: add ?src=URL'}`,
+    `bytes loaded: ${formatBytes(state.bytesLoaded)} of ${formatBytes(state.totalBytes)}${share}`,
+  ];
+  if (state.kind === 'spc') {
+    lines.push(`layers shown: ${state.layersShown} of ${state.layerCount ?? '?'}`);
+  }
+  lines.push(`Gaussians: ${state.gaussians.toLocaleString('en')}`);
+  if (state.tFirstPicture != null) lines.push(`first picture: ${(state.tFirstPicture / 1000).toFixed(2)} s`);
+  if (state.tComplete != null) lines.push(`complete: ${(state.tComplete / 1000).toFixed(2)} s`);
+  if (state.error) lines.push(`error: ${state.error.code ? `[${state.error.code}] ` : ''}${state.error.message}`);
+  hud.textContent = lines.join('\n');
+  hud.dataset.status = state.status;
+}
+
+function numbers(name, count) {
+  const text = params.get(name);
+  if (!text) return null;
+  const values = text.split(',').map(Number);
+  if (values.length !== count || !values.every(Number.isFinite)) {
+    throw new Error(`URL parameter ${name} needs ${count} comma-separated numbers, got "${text}"`);
+  }
+  return values;
+}
+
+// ------------------------------------------------------------------------------- the renderer
+function createCamera(app) {
+  const camera = new pc.Entity('camera');
+  camera.addComponent('camera', { clearColor: new pc.Color(0, 0, 0, 1), fov: 50 });
+  app.root.addChild(camera);
+  return camera;
+}
+
+/** Point `camera` as the URL says, or frame `positions` when the URL gives no camera. */
+function placeCamera(camera, positions) {
+  const position = numbers('cam', 3);
+  const target = numbers('target', 3);
+  const up = numbers('up', 3) ?? [0, -1, 0];
+  const fov = Number(params.get('fov')) || 50;
+  let view;
+  if (position && target) {
+    view = { position, target, up, fov };
+  } else {
+    const bounds = robustBounds(positions);
+    if (!bounds) return false;
+    view = frameBounds(bounds, up, fov);
+  }
+  state.camera = view;
+  const distance = Math.hypot(...view.position.map((p, i) => p - view.target[i]));
+  camera.camera.fov = view.fov;
+  camera.camera.nearClip = Math.max(distance * 1e-3, 1e-4);
+  camera.camera.farClip = distance * 1e3;
+  camera.setPosition(...view.position);
+  camera.lookAt(new pc.Vec3(...view.target), new pc.Vec3(...view.up));
+  orbit(camera, view);
+  return true;
+}
+
+/** Drag to turn around the target, wheel to come closer: about the scene's own up axis. */
+function orbit(camera, view) {
+  const target = new pc.Vec3(...view.target);
+  const up = new pc.Vec3(...view.up).normalize();
+  let dragging = null;
+  canvas.addEventListener('pointerdown', (e) => { dragging = { x: e.clientX, y: e.clientY }; });
+  window.addEventListener('pointerup', () => { dragging = null; });
+  window.addEventListener('pointermove', (e) => {
+    if (!dragging) return;
+    const dx = e.clientX - dragging.x, dy = e.clientY - dragging.y;
+    dragging = { x: e.clientX, y: e.clientY };
+    const offset = camera.getPosition().clone().sub(target);
+    const yaw = new pc.Quat().setFromAxisAngle(up, -dx * 0.3);
+    const side = new pc.Vec3().cross(up, offset).normalize();
+    const pitch = new pc.Quat().setFromAxisAngle(side, -dy * 0.3);
+    pitch.mul(yaw).transformVector(offset, offset);
+    camera.setPosition(target.clone().add(offset));
+    camera.lookAt(target, up);
+  });
+  canvas.addEventListener('wheel', (e) => {
+    e.preventDefault();
+    const offset = camera.getPosition().clone().sub(target).mulScalar(Math.exp(e.deltaY * 0.001));
+    camera.setPosition(target.clone().add(offset));
+  }, { passive: false });
+}
+
+// ------------------------------------------------------------------------------- the scenes
+async function showSpc(app, camera, whenShown) {
+  const spc = await import('../../src/index.js');
+  spc.configureDraco(browserDraco());
+  const maxLayer = params.has('maxLayer') ? Number(params.get('maxLayer')) : Infinity;
+  if (!(Number.isInteger(maxLayer) && maxLayer >= 0) && maxLayer !== Infinity) {
+    throw new Error(`URL parameter maxLayer must be a layer number (0, 1, ...), got "${params.get('maxLayer')}"`);
+  }
+  const decoder = new spc.StreamDecoder();
+  let placed = false;
+  const shown = [];
+
+  const addLayer = (layer) => {
+    const cloud = layer.cloud;
+    const event = { index: layer.index, kind: layer.kind, gaussians: cloud.count,
+      bytesLoaded: state.bytesLoaded, tDecoded: now(), tShown: null };
+    state.events.push(event);
+    state.layersDecoded = layer.index + 1;
+    state.gaussians += cloud.count;
+    if (cloud.count > 0) {
+      if (!placed) placed = placeCamera(camera, cloud.positions);
+      const entity = new pc.Entity(`layer ${layer.index}`);
+      entity.addComponent('gsplat', { resource: new pc.GSplatResource(app.graphicsDevice, toGSplatData(pc, cloud)) });
+      app.root.addChild(entity);
+    }
+    const ready = cloud.count > 0 ? whenShown() : Promise.resolve();
+    shown.push(ready.then(() => {
+      event.tShown = now();
+      state.layersShown = Math.max(state.layersShown, layer.index + 1);
+      if (cloud.count > 0 && state.tFirstPicture == null) {
+        state.tFirstPicture = event.tShown;
+        state.bytesAtFirstPicture = event.bytesLoaded;
+        // a slow renderer may show later layers in the same frame when bytes come in fast
+        state.layersInFirstPicture = state.layersDecoded;
+        state.bytesWhenFirstPictureShown = state.bytesLoaded;
+        // Still the frame that showed it (promises resolve after the frame, before the next):
+        // kept for tests, which may look later, when more layers are on screen.
+        if (params.has('capture')) window.spcViewerFirstPicture = canvas.toDataURL('image/png');
+      }
+      showProgress();
+    }));
+    showProgress();
+  };
+
+  const result = await streamSpc(src, {
+    maxLayer,
+    onRequest: (r) => {
+      state.requests.push({ first: r.first, last: r.last, status: r.status, t: now() });
+      state.totalBytes = state.totalBytes ?? r.contentRange?.size ?? null;
+    },
+    planLayers: (head) => {
+      const info = spc.inspect(head);  // the `spcodec info --json` document
+      state.layerCount = info.layers.length;
+      // end_offset: in the stored file (for a gzip wrapper, null unless it records them)
+      return { layers: info.layers.map((l) => ({ index: l.index, endOffset: l.end_offset })) };
+    },
+    sink: async (chunk) => {
+      state.bytesLoaded += chunk.length;
+      showProgress();
+      for (const layer of await decoder.push(chunk)) {
+        if (layer.index <= maxLayer) addLayer(layer);
+      }
+    },
+  });
+  state.mode = result.mode;
+  state.totalBytes = state.totalBytes ?? result.fileSize;
+  if (Number.isFinite(maxLayer)) {
+    state.layerCount = Math.min(state.layerCount ?? Infinity, maxLayer + 1);
+  } else {
+    await decoder.close();
+  }
+  await Promise.all(shown);
+}
+
+async function showAsset(app, camera, whenShown) {
+  const type = state.kind === 'ply' ? 'gsplat' : 'container';
+  const asset = new pc.Asset('scene', type, { url: src });
+  asset.on('progress', (received, total) => {
+    state.bytesLoaded = received;
+    state.totalBytes = total || state.totalBytes;
+    showProgress();
+  });
+  app.assets.add(asset);
+  await new Promise((resolve, reject) => {
+    asset.once('load', resolve);
+    asset.once('error', (message) => reject(new Error(String(message))));
+    app.assets.load(asset);
+  });
+  let entity, resources;
+  if (type === 'gsplat') {
+    entity = new pc.Entity('scene');
+    entity.addComponent('gsplat', { asset });
+    resources = [asset.resource];
+  } else {
+    entity = asset.resource.instantiateRenderEntity();
+    resources = (asset.resource.gsplats ?? []).map((a) => a.resource);
+  }
+  if (!resources.length) throw new Error(`${src} holds no Gaussian splats PlayCanvas can show`);
+  state.gaussians = resources.reduce((sum, r) => sum + r.gsplatData.numSplats, 0);
+  placeCamera(camera, resources[0].centers ?? resources[0].gsplatData.getCenters());
+  app.root.addChild(entity);
+  await whenShown();
+  state.tFirstPicture = now();
+  state.bytesAtFirstPicture = state.bytesLoaded;
+}
+
+// ------------------------------------------------------------------------------- main
+async function main() {
+  showProgress();
+  if (!src) return;
+  const app = await createApp(canvas, Number(params.get('width')) || 0, Number(params.get('height')) || 0);
+  const gl = app.graphicsDevice.gl;
+  state.renderer = gl ? gl.getParameter(gl.RENDERER) : app.graphicsDevice.deviceType;
+  const camera = createCamera(app);
+  const whenShown = frameWatcher(app);
+  state.status = 'loading';
+  state.tStart = performance.now();
+  if (state.kind === 'spc') await showSpc(app, camera, whenShown);
+  else await showAsset(app, camera, whenShown);
+  state.tComplete = now();
+  state.status = 'complete';
+  showProgress();
+}
+
+main().catch((error) => {
+  state.status = 'error';
+  state.error = { code: error.code ?? null, name: error.name, message: error.message };
+  showProgress();
+  console.error(error);
+});

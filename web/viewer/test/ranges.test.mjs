@@ -1,0 +1,164 @@
+// The range loader against an in-memory server: which ranges it asks for, and that every byte
+// reaches the sink once, in order.
+
+import assert from 'node:assert/strict';
+import test from 'node:test';
+import { FIRST_REQUEST_BYTES, parseContentRange, streamSpc, TransferError } from '../src/ranges.js';
+
+/** A fake `fetch` serving `file` with single byte ranges, as `spcodec serve` does. */
+function fakeServer(file, { ranges = true, chunk = 1000 } = {}) {
+  const log = [];
+  const fetchImpl = async (url, { headers }) => {
+    const match = /^bytes=(\d+)-(\d+)$/.exec(headers.Range);
+    let first = Number(match[1]);
+    let last = Math.min(Number(match[2]), file.length - 1);
+    let status = 206;
+    if (!ranges) {
+      first = 0;
+      last = file.length - 1;
+      status = 200;
+    }
+    log.push([first, last]);
+    const body = file.subarray(first, last + 1);
+    const h = new Headers({ 'Content-Length': String(body.length) });
+    if (status === 206) h.set('Content-Range', `bytes ${first}-${last}/${file.length}`);
+    const stream = new ReadableStream({
+      start(controller) {
+        for (let i = 0; i < body.length; i += chunk) controller.enqueue(body.slice(i, i + chunk));
+        controller.close();
+      },
+    });
+    return new Response(stream, { status, headers: h });
+  };
+  return { fetchImpl, log };
+}
+
+/** A file whose header block is `headerSize` long (u32 at offset 16) followed by layers. */
+function fakeFile(headerSize, layerEnds) {
+  const file = new Uint8Array(layerEnds.at(-1));
+  for (let i = 0; i < file.length; i++) file[i] = (i * 7 + 3) & 255;
+  new DataView(file.buffer).setUint32(16, headerSize, true);
+  return file;
+}
+
+function collector() {
+  const chunks = [];
+  return { chunks, sink: async (c) => { chunks.push(c.slice()); }, bytes: () => Buffer.concat(chunks) };
+}
+
+const plan = (layerEnds) => (head) => {
+  assert.ok(head.length >= new DataView(head.buffer, head.byteOffset).getUint32(16, true),
+    'the planner gets the whole header block');
+  return { layers: layerEnds.map((endOffset, index) => ({ index, endOffset })) };
+};
+
+test('one range per layer after the first request, every byte once', async () => {
+  const ends = [100_000, 180_000, 400_000];
+  const file = fakeFile(300, ends);
+  const { fetchImpl, log } = fakeServer(file);
+  const out = collector();
+  const result = await streamSpc('/x.spc', { sink: out.sink, planLayers: plan(ends), fetchImpl });
+  assert.deepEqual(log, [[0, FIRST_REQUEST_BYTES - 1], [FIRST_REQUEST_BYTES, 99_999],
+    [100_000, 179_999], [180_000, 399_999]]);
+  assert.deepEqual(result, { mode: 'ranges', fileSize: 400_000, bytes: 400_000 });
+  assert.ok(Buffer.from(file).equals(out.bytes()));
+});
+
+test('maxLayer stops the requests at that layer end', async () => {
+  const ends = [100_000, 180_000, 400_000];
+  const file = fakeFile(300, ends);
+  const { fetchImpl, log } = fakeServer(file);
+  const out = collector();
+  const result = await streamSpc('/x.spc', { sink: out.sink, planLayers: plan(ends), fetchImpl, maxLayer: 1 });
+  assert.equal(result.bytes, 180_000);
+  assert.equal(log.at(-1)[1], 179_999);
+  assert.ok(Buffer.from(file.subarray(0, 180_000)).equals(out.bytes()));
+});
+
+test('layers inside the first request need no further request', async () => {
+  const ends = [1_000, 3_000, 300_000];
+  const file = fakeFile(200, ends);
+  const { fetchImpl, log } = fakeServer(file);
+  const out = collector();
+  await streamSpc('/x.spc', { sink: out.sink, planLayers: plan(ends), fetchImpl });
+  assert.deepEqual(log, [[0, FIRST_REQUEST_BYTES - 1], [FIRST_REQUEST_BYTES, 299_999]]);
+  assert.ok(Buffer.from(file).equals(out.bytes()));
+});
+
+test('a header block longer than the first request is completed before planning', async () => {
+  const ends = [150_000, 200_000];
+  const file = fakeFile(10_000, ends);
+  const { fetchImpl, log } = fakeServer(file);
+  const out = collector();
+  await streamSpc('/x.spc', { sink: out.sink, planLayers: plan(ends), fetchImpl });
+  assert.deepEqual(log[1], [FIRST_REQUEST_BYTES, 9_999]);
+  assert.ok(Buffer.from(file).equals(out.bytes()));
+});
+
+test('a server without ranges is read as one stream', async () => {
+  const ends = [100_000, 200_000];
+  const file = fakeFile(300, ends);
+  const { fetchImpl, log } = fakeServer(file, { ranges: false });
+  const out = collector();
+  const result = await streamSpc('/x.spc', { sink: out.sink, planLayers: plan(ends), fetchImpl });
+  assert.equal(result.mode, 'stream');
+  assert.equal(log.length, 1);
+  assert.ok(Buffer.from(file).equals(out.bytes()));
+});
+
+test('a gzip-wrapped file without layer offsets is read as one stream (in two requests)', async () => {
+  const file = fakeFile(300, [200_000]);
+  file[0] = 0x1f;
+  file[1] = 0x8b;
+  const { fetchImpl, log } = fakeServer(file);
+  const out = collector();
+  const planner = () => ({ layers: [{ index: 0, endOffset: null }] });
+  const result = await streamSpc('/x.spc', { sink: out.sink, planLayers: planner, fetchImpl });
+  assert.equal(result.mode, 'stream');
+  assert.deepEqual(log, [[0, FIRST_REQUEST_BYTES - 1], [FIRST_REQUEST_BYTES, 199_999]]);
+  assert.ok(Buffer.from(file).equals(out.bytes()));
+});
+
+test('a gzip-wrapped file with layer offsets is fetched layer by layer', async () => {
+  const ends = [50_000, 120_000];
+  const file = fakeFile(300, ends);
+  file[0] = 0x1f;
+  file[1] = 0x8b;
+  const { fetchImpl, log } = fakeServer(file);
+  const out = collector();
+  const planner = () => ({ layers: ends.map((endOffset, index) => ({ index, endOffset })) });
+  const result = await streamSpc('/x.spc', { sink: out.sink, planLayers: planner, fetchImpl, maxLayer: 0 });
+  assert.equal(result.mode, 'ranges');
+  assert.deepEqual(log.at(-1), [FIRST_REQUEST_BYTES, 49_999]);
+  assert.ok(Buffer.from(file.subarray(0, 50_000)).equals(out.bytes()));
+  // all layers: the bytes after the last layer end (the gzip trailer) are fetched too
+  const all = collector();
+  const trailer = () => ({ layers: [{ index: 0, endOffset: 50_000 }, { index: 1, endOffset: 119_990 }] });
+  await streamSpc('/x.spc', { sink: all.sink, planLayers: trailer, fetchImpl });
+  assert.deepEqual(log.at(-1), [119_990, 119_999]);
+  assert.ok(Buffer.from(file).equals(all.bytes()));
+});
+
+test('bytes that are no header go to the sink whole, for the decoder to reject', async () => {
+  const file = new Uint8Array(100_000).fill(65);
+  const { fetchImpl } = fakeServer(file);
+  const out = collector();
+  const planner = () => { throw new Error('not an spc'); };
+  await streamSpc('/x.spc', { sink: out.sink, planLayers: planner, fetchImpl });
+  assert.ok(Buffer.from(file).equals(out.bytes()));
+});
+
+test('a wrong Content-Range or an HTTP error is a TransferError', async () => {
+  const liar = async () => new Response('xx', { status: 206, headers: { 'Content-Range': 'bytes 5-6/100' } });
+  await assert.rejects(streamSpc('/x', { sink: async () => {}, planLayers: plan([10]), fetchImpl: liar }),
+    TransferError);
+  const missing = async () => new Response('no', { status: 404 });
+  await assert.rejects(streamSpc('/x', { sink: async () => {}, planLayers: plan([10]), fetchImpl: missing }),
+    /HTTP 404/);
+});
+
+test('parseContentRange', () => {
+  assert.deepEqual(parseContentRange('bytes 0-47/1000'), { first: 0, last: 47, size: 1000 });
+  assert.equal(parseContentRange('bytes */1000'), null);
+  assert.equal(parseContentRange(null), null);
+});

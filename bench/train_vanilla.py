@@ -20,9 +20,11 @@ Writes MODEL.ply (INRIA layout) and MODEL.json (how it was made: command, settin
 log, time, peak memory, machine load, test PSNR/SSIM on the dataset's test split)::
 
     nice -n 5 python bench/train_vanilla.py /work/shared/data/nerf_synthetic_lego \\
-        -o /work/models/lego_vanilla.ply --downscale 4 --iterations 3000
+        -o /work/models/lego_vanilla.ply --downscale 4 --iterations 3000 --threads 1
 
-Judge the result again with ``spcodec eval MODEL.ply --dataset DIR --downscale N``.
+(25 min on the project's shared 2-core machine, 31.6 dB on the test split: docs/RESULTS.md,
+section "Vanilla training"; one torch thread is ~4x faster than two on a loaded machine). Judge
+the result again with ``spcodec eval MODEL.ply --dataset DIR --downscale N`` (the same N).
 """
 
 from __future__ import annotations

@@ -53,6 +53,28 @@ def real_file(relative: str) -> Path:
     return path
 
 
+def write_transforms_dataset(root: Path, cloud, cameras_train, cameras_test) -> None:
+    """A NeRF-style dataset (transforms_{train,test}.json + PNGs) whose images are renders of
+    ``cloud`` at the given cameras."""
+    import json
+
+    import numpy as np
+
+    from spcodec.encoder.images import write_png
+    from spcodec.encoder.render import render_image
+
+    root.mkdir(parents=True, exist_ok=True)
+    for split, cams in (("train", cameras_train), ("test", cameras_test)):
+        frames = []
+        for i, cam in enumerate(cams):
+            name = f"{split}_{i:02d}"
+            write_png(root / f"{name}.png", render_image(cloud, cam, device="cpu"))
+            c2w = np.linalg.inv(cam.world_to_camera) @ np.diag([1.0, -1.0, -1.0, 1.0])
+            frames.append({"file_path": name, "transform_matrix": c2w.tolist()})
+        doc = {"camera_angle_x": cams[0].fov_x, "frames": frames}
+        (root / f"transforms_{split}.json").write_text(json.dumps(doc))
+
+
 def real_plys() -> list[Path]:
     """Every PLY under the data folder (empty when the folder is absent)."""
     root = data_dir()

@@ -303,6 +303,87 @@ def test_replay_backward_equals_autograd_with_clamp_and_termination() -> None:
         torch.testing.assert_close(a, b, atol=1e-9, rtol=1e-7)
 
 
+# ------------------------------------------------- screen positions (adaptive density control)
+def _with_culled(params: GaussianParams) -> GaussianParams:
+    """``params`` plus one Gaussian behind the camera and one far off screen, placed first and
+    in the middle so the scatter to one row per Gaussian is exercised."""
+    extra = make_params([[0, 0, -2.0], [50.0, 0, 3.0]], [[0.05]] * 2, [0.5] * 2,
+                        sh=np.zeros((2, params.sh.shape[1], 3)))
+    parts = [torch.cat([e[:1], p[:60], e[1:], p[60:]]) for e, p in
+             zip(extra.tensors(), params.tensors())]
+    return GaussianParams(*parts)
+
+
+def test_means2d_gradient_equals_autograd_through_the_blend() -> None:
+    from spcodec.encoder.render.binning import bin_gaussians
+    from spcodec.encoder.render.composite import BlendConfig, blend_autograd
+
+    params = _with_culled(random_scene(120, 1, seed=21, opacity_range=(0.2, 0.95)))
+    cam = axis_camera(40, 30, 30.0)
+    cfg = settings(background=(0.5, 0.2, 0.9), tile_size=8, chunk_size=6)
+    w = torch.rand(cam.height, cam.width, 3, generator=torch.Generator().manual_seed(3),
+                   dtype=torch.float64)
+    leaves = GaussianParams(*(t.clone().requires_grad_(True) for t in params.tensors()))
+    out = render(leaves, cam, cfg, backend="torch")
+    (out.image * w).sum().backward()
+    ours = out.means2d_grad()
+
+    # oracle: the same blend with the screen positions as a leaf, differentiated by autograd
+    proj = project(params, cam, cfg)
+    leaf = proj.means2d.detach().clone().requires_grad_(True)
+    bins = bin_gaussians(proj.pixel_boxes, proj.depths, leaf.detach(), proj.conics,
+                         proj.extents, cam.width, cam.height, cfg.tile_size)
+    image, _ = blend_autograd(leaf, proj.conics, proj.opacities, proj.colors,
+                              torch.tensor(cfg.background, dtype=torch.float64), bins,
+                              BlendConfig(cfg.max_alpha, cfg.chunk_size, cfg.batch_elements),
+                              cam.width, cam.height)
+    (image * w).sum().backward()
+    assert ours.shape == (len(params), 2)
+    torch.testing.assert_close(ours[proj.ids], leaf.grad, atol=1e-10, rtol=1e-8)
+    culled = torch.ones(len(params), dtype=torch.bool)
+    culled[proj.ids] = False
+    assert out.visible.tolist() == (~culled).tolist() and int(culled.sum()) == 2
+    assert float(ours[culled].abs().max()) == 0.0 and float(ours.abs().max()) > 0.0
+    torch.testing.assert_close(out.means2d.detach()[proj.ids], proj.means2d)
+
+
+def test_means2d_gradients_sum_to_the_principal_point_derivative() -> None:
+    # moving the principal point by d moves every screen position by d along that axis and
+    # changes nothing else (no Gaussian near the frustum clamp), so the loss's derivative w.r.t.
+    # cx / cy is the sum of the per-Gaussian gradients: an oracle outside the renderer's code
+    params = random_scene(40, 0, seed=4, spread=0.3, opacity_range=(0.3, 0.8))
+    w = torch.rand(30, 40, 3, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+
+    def loss(cx: float, cy: float, grad: bool = False):
+        p = GaussianParams(*(t.clone().requires_grad_(grad) for t in params.tensors()))
+        out = render(p, axis_camera(40, 30, 30.0, cx=cx, cy=cy), settings(), backend="torch")
+        value = (out.image * w).sum()
+        if grad:
+            value.backward()
+            return out.means2d_grad()
+        return float(value)
+
+    grads = loss(20.0, 15.0, grad=True)
+    h = 1e-5
+    d_cx = (loss(20.0 + h, 15.0) - loss(20.0 - h, 15.0)) / (2 * h)
+    d_cy = (loss(20.0, 15.0 + h) - loss(20.0, 15.0 - h)) / (2 * h)
+    assert float(grads[:, 0].sum()) == pytest.approx(d_cx, rel=1e-5)
+    assert float(grads[:, 1].sum()) == pytest.approx(d_cy, rel=1e-5)
+
+
+def test_radii_are_the_footprint_half_size_and_zero_when_culled() -> None:
+    # isotropic Gaussians on the optical axis: screen std sqrt((f s / z)^2 + blur), 1/255
+    # contour at k = sqrt(2 ln(255 o)) standard deviations
+    cam = axis_camera(32, 32, 40.0)
+    params = make_params([[0, 0, 2.0], [0, 0, 3.0], [0, 0, -2.0]], [[0.05], [0.02], [0.05]],
+                         [0.5, 0.9, 0.5], [[1, 1, 1]] * 3)
+    out = render(params, cam, settings(), backend="torch")
+    for i, (s, o, z) in enumerate([(0.05, 0.5, 2.0), (0.02, 0.9, 3.0)]):
+        sigma = math.sqrt((40.0 * s / z) ** 2 + 0.3)
+        assert float(out.radii[i]) == pytest.approx(math.sqrt(2 * math.log(255 * o)) * sigma)
+    assert float(out.radii[2]) == 0.0 and out.means2d_grad() is None
+
+
 # ------------------------------------------------------------------------------- colour
 def _real_sh_scipy(degree: int, dirs: np.ndarray) -> np.ndarray:
     """3DGS basis from scipy's complex SH: textbook real SH times (-1)^m, index l*l + l + m."""
@@ -527,7 +608,8 @@ def test_gsplat_arguments_follow_its_documented_contract() -> None:
             antialiased=rasterize_mode == "antialiased"))
         radii = torch.zeros(1, n, 2, dtype=torch.int32)
         radii[0, out.visible] = 3
-        return out.image[None], out.alpha[None, :, :, None], {"radii": radii}
+        return (out.image[None], out.alpha[None, :, :, None],
+                {"radii": radii, "means2d": out.means2d[None]})
 
     result = result_from_gsplat(*fake_rasterization(**gsplat_arguments(params, cam, cfg)),
                                 dtype=torch.float32)
@@ -535,6 +617,8 @@ def test_gsplat_arguments_follow_its_documented_contract() -> None:
     torch.testing.assert_close(result.image, ours.image, atol=1e-6, rtol=0)
     torch.testing.assert_close(result.alpha, ours.alpha, atol=1e-6, rtol=0)
     assert torch.equal(result.visible, ours.visible) and 0 < int(ours.visible.sum()) < 50
+    assert torch.equal(result.radii, torch.where(ours.visible, 3.0, 0.0))
+    assert result.means2d.shape == (1, 50, 2) and result.means2d_grad() is None
 
 
 @pytest.mark.skipif(gsplat_problem() is not None,
@@ -563,3 +647,9 @@ def test_torch_renderer_matches_gsplat(antialiased: bool) -> None:
     for a, b in zip(cuda.tensors(), cpu.tensors()):
         ga, gb = a.grad.cpu(), b.grad
         assert float((ga - gb).norm()) <= 0.05 * float(gb.norm()) + 1e-6
+    # what adaptive density control reads: screen-position gradients and radii (gsplat rounds
+    # radii up to whole pixels and caps the contour at 3.33 sigma)
+    both = ref.visible.cpu() & ours.visible
+    ga, gb = ref.means2d_grad().cpu()[both], ours.means2d_grad()[both]
+    assert float((ga - gb).norm()) <= 0.05 * float(gb.norm()) + 1e-6
+    assert float((ref.radii.cpu()[both] - ours.radii[both]).abs().max()) <= 1.01

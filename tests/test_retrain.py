@@ -21,15 +21,13 @@ import spcodec
 from spcodec.cli import main
 from spcodec.encoder.cameras import Camera
 from spcodec.encoder.evaluate import DatasetMismatchWarning, EvalConfig, evaluate_against_reference
-from spcodec.encoder.images import write_png
 from spcodec.encoder.pipeline import EncoderConfig, SceneWriter, encode
-from spcodec.encoder.render import render_image
 from spcodec.encoder.retrain import RetrainConfig, RunControl
 from spcodec.encoder.views import sample_views
 from spcodec.errors import Interrupted, UsageError
 from spcodec.synthetic import make_scene
 
-from conftest import real_file
+from conftest import real_file, write_transforms_dataset
 
 #: Small and fast: every test here retrains for seconds, not minutes.
 QUICK = RetrainConfig(iterations=60, finish_iterations=16, views=8, resolution=64,
@@ -215,24 +213,10 @@ def test_eval_reproduces_the_psnr_the_encoder_reported(tmp_path, scene, capsys):
 
 
 # ------------------------------------------------------------------------------- datasets
-def _transforms_dataset(root, cloud, cameras_train, cameras_test) -> None:
-    """A NeRF-style dataset whose images are renders of ``cloud``."""
-    root.mkdir(parents=True, exist_ok=True)
-    for split, cams in (("train", cameras_train), ("test", cameras_test)):
-        frames = []
-        for i, cam in enumerate(cams):
-            name = f"{split}_{i:02d}"
-            write_png(root / f"{name}.png", render_image(cloud, cam, device="cpu"))
-            c2w = np.linalg.inv(cam.world_to_camera) @ np.diag([1.0, -1.0, -1.0, 1.0])
-            frames.append({"file_path": name, "transform_matrix": c2w.tolist()})
-        doc = {"camera_angle_x": cams[0].fov_x, "frames": frames}
-        (root / f"transforms_{split}.json").write_text(json.dumps(doc))
-
-
 def test_dataset_mode_trains_on_train_views_and_reports_test_psnr(tmp_path, scene):
     train = sample_views(scene, 6, resolution=(64, 48), split="train")
     test = sample_views(scene, 2, resolution=(64, 48), split="eval")
-    _transforms_dataset(tmp_path / "data", scene, train, test)
+    write_transforms_dataset(tmp_path / "data", scene, train, test)
     with warnings.catch_warnings():
         warnings.simplefilter("error", DatasetMismatchWarning)
         result = encode(scene, retrain_config(), dataset=tmp_path / "data")
@@ -256,7 +240,7 @@ def test_unreadable_dataset_is_one_line_and_no_output(tmp_path, scene, capsys):
 def test_cameras_that_do_not_see_the_model_are_refused(tmp_path, scene, capsys):
     away = [Camera.look_at(np.array([0, 0, -5.0 - i]), np.array([0, 0, -20.0]),
                            np.array([0, -1.0, 0]), 48, 32, 0.8) for i in range(3)]
-    _transforms_dataset(tmp_path / "data", scene, away, away[:1])
+    write_transforms_dataset(tmp_path / "data", scene, away, away[:1])
     ply, out = tmp_path / "in.ply", tmp_path / "out.spc"
     spcodec.write_ply(ply, scene)
     code = main(["encode", str(ply), "-o", str(out), "--dataset", str(tmp_path / "data"),
@@ -270,7 +254,7 @@ def test_a_dataset_of_another_scene_warns_before_training(tmp_path, scene):
     other = make_scene(9, curves=4, per_curve=150, blobs=900, sh_degree=1).cloud
     other.means = (other.means + np.float32(1.5)).astype(np.float32)  # elsewhere, unrelated
     train = sample_views(scene, 4, resolution=(48, 32), split="train")
-    _transforms_dataset(tmp_path / "data", other, train, train[:1])
+    write_transforms_dataset(tmp_path / "data", other, train, train[:1])
     with pytest.warns(DatasetMismatchWarning, match="likely show different scenes"):
         encode(scene, retrain_config(iterations=5, finish_iterations=0),
                dataset=tmp_path / "data")

@@ -4,7 +4,8 @@ Public API (the only names other modules should rely on)::
 
     params = GaussianParams.from_cloud(cloud, device, requires_grad=True)
     result = render(params, camera, RenderSettings(background=(1, 1, 1)), backend="auto")
-    result.image (H, W, 3), result.alpha (H, W), result.visible (N,)
+    result.image (H, W, 3), result.alpha (H, W), result.visible (N,), result.radii (N,)
+    result.means2d_grad()                  # (N, 2) d loss / d screen position, after backward
     img = render_image(cloud, camera)      # numpy float32 (H, W, 3) in [0, 1]
     dev = resolve_device("auto")           # cuda when CUDA + gsplat work, else cpu
 

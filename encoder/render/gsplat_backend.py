@@ -22,7 +22,7 @@ import torch
 from spcodec.encoder.cameras import Camera
 
 from .params import GaussianParams
-from .settings import BLUR_VARIANCE, RenderResult, RenderSettings
+from .settings import BLUR_VARIANCE, RenderResult, RenderSettings, retain_means2d_grad
 
 GSPLAT_MAX_ALPHA = 0.999
 """The alpha clamp hard-coded in gsplat's CUDA rasterizer."""
@@ -96,9 +96,13 @@ def result_from_gsplat(colors: torch.Tensor, alphas: torch.Tensor, meta: dict,
     """Our RenderResult from gsplat's (1, H, W, 3) colours, (1, H, W, 1) alphas and metadata.
 
     ``meta["radii"]`` is (1, N, 2) int in gsplat 1.5 (per-axis), (1, N) before; a Gaussian is
-    visible when any radius is positive.
+    visible when any radius is positive, and its radius is the larger one. ``meta["means2d"]``
+    (1, N, 2) is the screen-position tensor gsplat's rasterizer consumed (unpacked mode), so its
+    retained gradient is d loss / d means2d (as gsplat's own densification strategy reads it).
     """
     radii = meta["radii"][0]
     visible = (radii > 0).any(dim=-1) if radii.dim() == 2 else radii > 0
+    radius = radii.max(dim=-1).values if radii.dim() == 2 else radii
     return RenderResult(image=colors[0].to(dtype), alpha=alphas[0, :, :, 0].to(dtype),
-                        visible=visible)
+                        visible=visible, radii=radius.to(dtype),
+                        means2d=retain_means2d_grad(meta["means2d"]))

@@ -73,7 +73,8 @@ class Projection:
     after sigmoid (and compensation); ``colors`` (M, 3); ``depths`` (M,) camera z (detached);
     ``pixel_boxes`` (M, 4) int64 inclusive pixel ranges (col0, col1, row0, row1) clipped to the
     image, each non-empty; ``extents`` (M,) the Mahalanobis radius of the 1/255 contour
-    (detached).
+    (detached); ``radii`` (M,) the larger half-side in pixels of the box around that contour
+    (detached; the screen size adaptive density control prunes by).
     """
 
     ids: torch.Tensor
@@ -84,6 +85,7 @@ class Projection:
     depths: torch.Tensor
     pixel_boxes: torch.Tensor
     extents: torch.Tensor
+    radii: torch.Tensor
 
 
 def rotation_entries(quats: torch.Tensor) -> list[list[torch.Tensor]]:
@@ -142,11 +144,13 @@ def project(params: GaussianParams, camera: Camera, settings: RenderSettings) ->
         ok &= torch.isfinite(mean2d).all(dim=1)
         safe_a = torch.where(ok, a, torch.ones_like(a))
         safe_c = torch.where(ok, c, torch.ones_like(c))
-        col0, col1 = pixel_range(mean2d[:, 0], extent * torch.sqrt(safe_a), cam.width)
-        row0, row1 = pixel_range(mean2d[:, 1], extent * torch.sqrt(safe_c), cam.height)
+        half_x, half_y = extent * torch.sqrt(safe_a), extent * torch.sqrt(safe_c)
+        col0, col1 = pixel_range(mean2d[:, 0], half_x, cam.width)
+        row0, row1 = pixel_range(mean2d[:, 1], half_y, cam.height)
         ok &= (col0 <= col1) & (row0 <= row1)
         keep = torch.nonzero(ok).squeeze(1)
         boxes = torch.stack([col0, col1, row0, row1], dim=1)[keep]
+        radii = torch.maximum(half_x, half_y)[keep]
 
     # whole scene in view (the common case): skip the gathers and their backward scatters
     pick = (lambda t: t) if len(keep) == len(in_front) else (lambda t: t[keep])  # noqa: E731
@@ -170,6 +174,7 @@ def project(params: GaussianParams, camera: Camera, settings: RenderSettings) ->
         depths=means_cam[ids, 2].detach(),
         pixel_boxes=boxes,
         extents=pick(extent),
+        radii=radii,
     )
 
 

@@ -68,9 +68,30 @@ class RenderResult:
     ``image`` (H, W, 3) linear colour, not clamped (values slightly above 1 are possible);
     ``alpha`` (H, W) accumulated opacity ``1 - final transmittance``;
     ``visible`` (N,) bool, the Gaussians that survived culling (in front of the near plane, with
-    a screen footprint that reaches a pixel centre), e.g. to restrict optimizer updates.
+    a screen footprint that reaches a pixel centre), e.g. to restrict optimizer updates;
+    ``radii`` (N,) screen radius in pixels of each Gaussian's footprint (the larger half-side of
+    the box its rasterizer draws it in), 0 where culled;
+    ``means2d`` the screen positions in pixels the rasterizer consumed: (N, 2) from the torch
+    renderer (rows of culled Gaussians are 0), gsplat's own (1, N, 2) tensor from gsplat. When
+    the parameters require gradients it retains its gradient, so after ``backward()``
+    :meth:`means2d_grad` gives d loss / d means2d, what adaptive density control accumulates.
     """
 
     image: torch.Tensor
     alpha: torch.Tensor
     visible: torch.Tensor
+    radii: torch.Tensor
+    means2d: torch.Tensor
+
+    def means2d_grad(self) -> torch.Tensor | None:
+        """(N, 2) gradient of the loss w.r.t. the screen positions in pixels (0 for culled
+        Gaussians), or None before ``backward()`` or when nothing required gradients."""
+        grad = self.means2d.grad
+        return None if grad is None else grad.reshape(-1, 2)
+
+
+def retain_means2d_grad(means2d: torch.Tensor) -> torch.Tensor:
+    """Keep the gradient of a non-leaf screen-position tensor (no-op when it has none)."""
+    if means2d.requires_grad:
+        means2d.retain_grad()
+    return means2d

@@ -12,7 +12,7 @@ from .binning import bin_gaussians
 from .composite import BlendConfig, blend, blend_autograd
 from .params import GaussianParams
 from .projection import project
-from .settings import RenderResult, RenderSettings
+from .settings import RenderResult, RenderSettings, retain_means2d_grad
 
 
 def render_torch(params: GaussianParams, camera: Camera, settings: RenderSettings,
@@ -23,6 +23,14 @@ def render_torch(params: GaussianParams, camera: Camera, settings: RenderSetting
     ``"autograd"`` lets autograd store the blend's intermediates (tests and measurements only).
     """
     proj = project(params, camera, settings)
+    n = len(params)
+    if len(proj.ids) == n:  # nothing culled: ids are 0..n-1 in order
+        means2d = retain_means2d_grad(proj.means2d)
+        drawn = means2d
+    else:  # scatter to one row per Gaussian (whose gradient adaptive density control reads)
+        means2d = retain_means2d_grad(
+            proj.means2d.new_zeros(n, 2).index_copy(0, proj.ids, proj.means2d))
+        drawn = means2d[proj.ids]
     bins = bin_gaussians(proj.pixel_boxes, proj.depths, proj.means2d.detach(),
                          proj.conics.detach(), proj.extents, camera.width, camera.height,
                          settings.tile_size)
@@ -30,8 +38,9 @@ def render_torch(params: GaussianParams, camera: Camera, settings: RenderSetting
                               device=params.device)
     config = BlendConfig(settings.max_alpha, settings.chunk_size, settings.batch_elements)
     blend_fn = blend if backward == "replay" else blend_autograd
-    image, alpha = blend_fn(proj.means2d, proj.conics, proj.opacities, proj.colors, background,
+    image, alpha = blend_fn(drawn, proj.conics, proj.opacities, proj.colors, background,
                             bins, config, camera.width, camera.height)
-    visible = torch.zeros(len(params), dtype=torch.bool, device=params.device)
+    visible = torch.zeros(n, dtype=torch.bool, device=params.device)
     visible[proj.ids] = True
-    return RenderResult(image=image, alpha=alpha, visible=visible)
+    radii = proj.radii.new_zeros(n).index_copy(0, proj.ids, proj.radii)
+    return RenderResult(image=image, alpha=alpha, visible=visible, radii=radii, means2d=means2d)

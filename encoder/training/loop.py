@@ -20,7 +20,7 @@ from typing import Callable, Protocol
 import numpy as np
 import torch
 
-from ..render import GaussianParams, RenderSettings, render
+from ..render import GaussianParams, RenderResult, RenderSettings, render
 from .loss import DSSIM_WEIGHT, photometric_loss, psnr_of
 from .targets import Targets, TargetView
 
@@ -81,6 +81,9 @@ class FitLoop:
     step: int = 0
     """Steps completed so far (restored from a checkpoint to resume)."""
     stop: threading.Event = field(default_factory=threading.Event)
+    after_step: Callable[[int, RenderResult], None] | None = None
+    """Called after each optimizer step with the count of completed steps and that step's render
+    (its screen-position gradient still attached): adaptive density control hooks in here."""
 
     def view(self, step: int) -> TargetView:
         return self.targets.views[view_order(len(self.targets.views), step, self.seed)]
@@ -95,6 +98,8 @@ class FitLoop:
         loss.backward()
         self.model.optimizer.step()
         self.step += 1
+        if self.after_step is not None:
+            self.after_step(self.step, result)
         return StepReport(self.step, self.total, float(loss.detach()),
                           psnr_of(result.image, target.image))
 

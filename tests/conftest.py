@@ -34,6 +34,18 @@ def load_fuzzer():
     return module
 
 
+@pytest.fixture(scope="module")
+def single_torch_thread():
+    """Torch on one thread for a module of small training runs: on the 2-core machine its own
+    threads only add contention (``pytestmark = pytest.mark.usefixtures(...)``)."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 def data_dir() -> Path:
     """The real-data folder: $SPCODEC_DATA, else the nearest ``shared/data`` above the repository
     (``../shared/data`` in CI; further up from a git worktree)."""

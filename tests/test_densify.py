@@ -34,13 +34,7 @@ from spcodec.encoder.training.targets import distillation_targets
 
 from conftest import REPO, write_transforms_dataset
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _single_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
 
 def cloud_of(n: int, seed: int = 0, degree: int = 1, spread: float = 0.5,

@@ -12,13 +12,7 @@ from spcodec.encoder.render.projection import project
 
 from test_render import axis_camera, make_params, random_scene
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _single_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
 
 def brute_force_weights(params, cam, cfg: RenderSettings) -> np.ndarray:

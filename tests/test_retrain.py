@@ -35,12 +35,7 @@ QUICK = RetrainConfig(iterations=60, finish_iterations=16, views=8, resolution=6
 EVAL = EvalConfig(views=4, resolution=64, device="cpu")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _single_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
 
 @pytest.fixture(scope="module")

@@ -27,13 +27,7 @@ from spcodec.encoder.training.quantaware import CodebookGaussians
 from spcodec.errors import UsageError
 from spcodec.synthetic import make_scene
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _single_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
 
 @pytest.fixture(scope="module")

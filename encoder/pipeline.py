@@ -62,7 +62,8 @@ class EncoderConfig:
     target_size: int | None = None
     #: The sketch layer, a streaming viewer's first picture, ends within this share of the file:
     #: when it would not, the sketch clusters of least importance per Gaussian go to the patch
-    #: (None: no limit; the no-retrain encoder only, see docs/RESULTS.md section 7).
+    #: (None: no limit). With retraining the share is judged before training, on the file the
+    #: prune factor makes (not with ``target_size``, whose pruning follows the sketch's size).
     max_sketch_share: float | None = 0.1
 
     def seeded(self) -> "EncoderConfig":
@@ -161,20 +162,33 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
             keep = _clusters_to_keep(data, refined, importance, config.max_sketch_share)
             if keep is None:
                 break
-            before = len(refined.patch)
-            refined = _keep_clusters(refined, keep)
-            moved += len(refined.patch) - before
-            sketch = encode_sketch(cloud, refined, found, config, progress, times)
-            writer = dataclasses.replace(writer, sketch=sketch.clusters)
+            refined, sketch, writer, count = _move_to_patch(cloud, refined, keep, found, config,
+                                                            writer, progress, times)
+            moved += count
             patch, data = _encode_patch(cloud, sketch, writer, importance, patch_encoder,
                                         progress, times)
         sketch.stats["moved_to_patch_for_share"] = moved
         rows = np.arange(len(sketch.patch_idx))
     else:
-        from .prune_retrain import encode_pruned_patch
+        from .prune_retrain import encode_pruned_patch, factor_trial, scene_weights
 
+        weights = scene_weights(cloud, config, prepared)
+        moved = 0
+        while refined is not None and sketch.clusters and config.max_sketch_share is not None:
+            # the share is judged on the file the prune factor makes before training, whose
+            # layout the retrained file keeps (same count, same codebook settings)
+            trial = factor_trial(sketch, cloud.subset(sketch.patch_idx), writer, config, weights)
+            keep = None if trial is None else \
+                _clusters_to_keep(trial, refined, weights, config.max_sketch_share)
+            if keep is None:
+                break
+            refined, sketch, writer, count = _move_to_patch(cloud, refined, keep, found, config,
+                                                            writer, progress, times)
+            moved += count
+        sketch.stats["moved_to_patch_for_share"] = moved
         choice = encode_pruned_patch(cloud, sketch, cloud.subset(sketch.patch_idx), writer,
-                                     config, prepared, dataset, control, progress, times)
+                                     config, prepared, weights, dataset, control, progress,
+                                     times)
         patch, rows, extra = choice.encoding, choice.rows, choice.stats
         data = _write(writer, patch, progress, times)
     patch_idx = sketch.patch_idx[rows]
@@ -325,6 +339,19 @@ class SceneWriter:
     def decoded_sketch(self) -> GaussianCloud:
         """The sketch exactly as a decoder will see it (layer 0 of a sketch-only file)."""
         return decode_layers(self.write(None), max_layer=0).cloud
+
+
+def _move_to_patch(cloud: GaussianCloud, refined: RefineResult, keep: list[int], found: int,
+                   config: EncoderConfig, writer: "SceneWriter", progress: ProgressFactory,
+                   times: dict[str, float]
+                   ) -> tuple[RefineResult, SketchOutcome, "SceneWriter", int]:
+    """Keep only the clusters ``keep`` as sketch and re-encode it: the refined clusters, the
+    sketch, a writer for it and how many Gaussians went to the patch."""
+    before = len(refined.patch)
+    refined = _keep_clusters(refined, keep)
+    sketch = encode_sketch(cloud, refined, found, config, progress, times)
+    return (refined, sketch, dataclasses.replace(writer, sketch=sketch.clusters),
+            len(refined.patch) - before)
 
 
 def _clusters_to_keep(data: bytes, refined: RefineResult, importance: np.ndarray,

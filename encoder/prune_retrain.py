@@ -77,19 +77,41 @@ def prepare_targets(cloud: GaussianCloud, config: "EncoderConfig", dataset: str 
     return PreparedTargets(targets, settings, device, psnr)
 
 
+def scene_weights(cloud: GaussianCloud, config: "EncoderConfig",
+                  prepared: PreparedTargets) -> np.ndarray:
+    """Blend weight (n,) of every Gaussian of the whole scene over spread training views: what
+    pruning keeps, and what ranks sketch clusters for the cap on the sketch layer's share."""
+    view_config = config.retrain or _NO_RETRAIN
+    return blend_weights(cloud, spread(prepared.targets.cameras, view_config.importance_views),
+                         prepared.settings, prepared.device)
+
+
+def factor_trial(sketch: "SketchOutcome", patch: GaussianCloud, writer: "SceneWriter",
+                 config: "EncoderConfig", weights: np.ndarray) -> bytes | None:
+    """The file with the patch pruned by the retrain config's factor and coded without
+    retraining (None with a target size or without retraining): the retrained file's layout to
+    within the gains of training, cheap enough to size the sketch layer's share before training."""
+    if config.retrain is None or config.target_size is not None:
+        return None
+    encoder = PatchEncoder(config.patch, seed=config.seed)
+    patch_weights = weights[sketch.patch_idx]
+    top = prune_by_importance(patch_weights, kept_count(len(patch),
+                                                        config.retrain.patch_downsample))
+    return writer.write(encoder.encode(patch.subset(top), importance=patch_weights[top]))
+
+
 def encode_pruned_patch(cloud: GaussianCloud, sketch: "SketchOutcome", patch: GaussianCloud,
                         writer: "SceneWriter", config: "EncoderConfig",
-                        prepared: PreparedTargets, dataset: str | Path | None,
-                        control: RunControl, progress: "ProgressFactory",
-                        times: dict[str, float]) -> PatchChoice:
-    """Prune (and retrain, when ``config.retrain`` is set) the patch, sized by the config."""
+                        prepared: PreparedTargets, weights: np.ndarray,
+                        dataset: str | Path | None, control: RunControl,
+                        progress: "ProgressFactory", times: dict[str, float]) -> PatchChoice:
+    """Prune (and retrain, when ``config.retrain`` is set) the patch, sized by the config.
+    ``weights`` are :func:`scene_weights` of the whole scene."""
     retrain = config.retrain
-    view_config = retrain or _NO_RETRAIN
     encoder = PatchEncoder(config.patch, seed=config.seed)
     targets = prepared.targets
     stats: dict = {"psnr_input": prepared.psnr_input}
-    weights = blend_weights(cloud, spread(targets.cameras, view_config.importance_views),
-                            prepared.settings, prepared.device)[sketch.patch_idx]
+    weights = weights[sketch.patch_idx]
 
     t = time.perf_counter()
     stage = progress("prune", None)

@@ -43,8 +43,11 @@ def scene():
     return make_scene(5, curves=4, per_curve=150, blobs=900, sh_degree=1).cloud
 
 
-def retrain_config(**changes) -> EncoderConfig:
-    return EncoderConfig(seed=3, retrain=dataclasses.replace(QUICK, **changes))
+def retrain_config(share: float | None = None, **changes) -> EncoderConfig:
+    """Retraining itself, by default without the cap on the sketch layer's share of the file
+    (the synthetic curves are most of the scene; the cap has its own test)."""
+    return EncoderConfig(seed=3, retrain=dataclasses.replace(QUICK, **changes),
+                         max_sketch_share=share)
 
 
 # ------------------------------------------------------------------------------- quality
@@ -77,12 +80,28 @@ def test_the_frozen_sketch_is_bit_identical_before_and_after_retraining(scene):
     result = encode(scene, config)
     assert result.stats["sketch_gaussians"] > 0
     sketch_after = spcodec.decode_layers(result.data, max_layer=0).cloud
-    plain = encode(scene, EncoderConfig(seed=3, max_sketch_share=None))  # no cap when retraining
+    plain = encode(scene, EncoderConfig(seed=3, max_sketch_share=None))
     sketch_before = spcodec.decode_layers(plain.data, max_layer=0).cloud
     assert sketch_after.equals(sketch_before)
     writer = SceneWriter(result.scene.sh_degree, result.scene.sketch, {},
                          spcodec.writer.WriteOptions())
     assert writer.decoded_sketch().equals(sketch_after)
+
+
+def test_the_sketch_layer_of_a_retrained_file_is_capped_before_training(scene):
+    """The pruned patch is a fraction of the no-retrain one, so the sketch would be most of a
+    retrained file: clusters go to the patch, judged on the pruned file before training."""
+    free = encode(scene, retrain_config(iterations=20))
+    capped = encode(scene, retrain_config(share=0.1, iterations=20))
+
+    def first_share(result) -> float:
+        return result.stats["layer_ends"][0] / result.stats["bytes"]
+
+    assert first_share(free) > 0.2
+    moved = capped.stats["sketch"]["moved_to_patch_for_share"]
+    assert moved > 0 and capped.stats["sketch_gaussians"] < free.stats["sketch_gaussians"]
+    assert first_share(capped) <= 0.12  # the retrained file keeps the pruned file's layout
+    assert len(spcodec.decode(capped.data)) == len(capped.source_index)
 
 
 def test_training_never_changes_the_frozen_tensors(scene):

@@ -49,8 +49,9 @@ from .training.targets import Targets
 class RetrainConfig:
     """Settings of the retraining stage (stored in the file's metadata)."""
 
-    #: Keep ``1 / patch_downsample`` of the patch Gaussians (the paper sweeps 1..20; 1 = keep all).
-    patch_downsample: float = 4.0
+    #: Keep ``1 / patch_downsample`` of the patch Gaussians (the paper sweeps 1..20; 1 = keep all;
+    #: the balanced preset's factor, which pairs it with finer codebooks: encoder/presets.py).
+    patch_downsample: float = 8.0
     #: How survivors are chosen: "importance" (largest blend weight over the training views) or
     #: "uniform" (random, the paper's). See docs/RESULTS.md for the comparison behind the default.
     prune: PruneMethod = "importance"
@@ -190,9 +191,7 @@ class RetrainStage:
     def quantize(self, trained: GaussianCloud) -> tuple[Quantized, np.ndarray]:
         """k-means codebooks for ``trained`` (weighted by blend weight) and that weight."""
         importance = self.rank(trained)
-        mean = importance.mean() if len(importance) else 0.0
-        weights = importance / mean if self.patch_encoder.config.weighted_kmeans and mean > 0 \
-            else None
+        weights = self.patch_encoder.kmeans_weights(importance)
         return self.patch_encoder.quantize(trained, weights), importance
 
     def finish(self, trained: GaussianCloud, quantized: Quantized, stats: dict,

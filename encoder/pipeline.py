@@ -155,37 +155,31 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
         importance = patch_encoder.measure_importance(cloud)  # whole scene: the sketch occludes
         stage.done(_importance_summary(config.patch))
         times["importance"] = time.perf_counter() - t
-        patch, data = _encode_patch(cloud, sketch, writer, importance, patch_encoder, progress,
-                                    times)
-        moved = 0
-        while refined is not None and sketch.clusters and config.max_sketch_share is not None:
-            keep = _clusters_to_keep(data, refined, importance, config.max_sketch_share)
-            if keep is None:
-                break
-            refined, sketch, writer, count = _move_to_patch(cloud, refined, keep, found, config,
-                                                            writer, progress, times)
-            moved += count
-            patch, data = _encode_patch(cloud, sketch, writer, importance, patch_encoder,
-                                        progress, times)
-        sketch.stats["moved_to_patch_for_share"] = moved
+        last: dict = {}
+
+        def encoded(part: SketchOutcome, part_writer: SceneWriter) -> bytes:
+            last["patch"], last["data"] = _encode_patch(cloud, part, part_writer, importance,
+                                                        patch_encoder, progress, times)
+            last["sketch"] = part
+            return last["data"]
+
+        sketch, writer = _cap_sketch(cloud, refined, found, sketch, writer, config, importance,
+                                     encoded, progress, times)
+        if last.get("sketch") is not sketch:
+            encoded(sketch, writer)
+        patch, data = last["patch"], last["data"]
         rows = np.arange(len(sketch.patch_idx))
     else:
         from .prune_retrain import encode_pruned_patch, factor_trial, scene_weights
 
         weights = scene_weights(cloud, config, prepared)
-        moved = 0
-        while refined is not None and sketch.clusters and config.max_sketch_share is not None:
-            # the share is judged on the file the prune factor makes before training, whose
-            # layout the retrained file keeps (same count, same codebook settings)
-            trial = factor_trial(sketch, cloud.subset(sketch.patch_idx), writer, config, weights)
-            keep = None if trial is None else \
-                _clusters_to_keep(trial, refined, weights, config.max_sketch_share)
-            if keep is None:
-                break
-            refined, sketch, writer, count = _move_to_patch(cloud, refined, keep, found, config,
-                                                            writer, progress, times)
-            moved += count
-        sketch.stats["moved_to_patch_for_share"] = moved
+        # the share is judged on the file the prune factor makes before training, whose layout
+        # the retrained file keeps (same count, same codebook settings)
+        sketch, writer = _cap_sketch(
+            cloud, refined, found, sketch, writer, config, weights,
+            lambda part, part_writer: factor_trial(part, cloud.subset(part.patch_idx),
+                                                   part_writer, config, weights),
+            progress, times)
         choice = encode_pruned_patch(cloud, sketch, cloud.subset(sketch.patch_idx), writer,
                                      config, prepared, weights, dataset, control, progress,
                                      times)
@@ -341,17 +335,29 @@ class SceneWriter:
         return decode_layers(self.write(None), max_layer=0).cloud
 
 
-def _move_to_patch(cloud: GaussianCloud, refined: RefineResult, keep: list[int], found: int,
-                   config: EncoderConfig, writer: "SceneWriter", progress: ProgressFactory,
-                   times: dict[str, float]
-                   ) -> tuple[RefineResult, SketchOutcome, "SceneWriter", int]:
-    """Keep only the clusters ``keep`` as sketch and re-encode it: the refined clusters, the
-    sketch, a writer for it and how many Gaussians went to the patch."""
-    before = len(refined.patch)
-    refined = _keep_clusters(refined, keep)
-    sketch = encode_sketch(cloud, refined, found, config, progress, times)
-    return (refined, sketch, dataclasses.replace(writer, sketch=sketch.clusters),
-            len(refined.patch) - before)
+def _cap_sketch(cloud: GaussianCloud, refined: RefineResult | None, found: int,
+                sketch: SketchOutcome, writer: SceneWriter, config: EncoderConfig,
+                importance: np.ndarray,
+                file_of: Callable[[SketchOutcome, SceneWriter], bytes | None],
+                progress: ProgressFactory, times: dict[str, float]
+                ) -> tuple[SketchOutcome, SceneWriter]:
+    """Move the sketch clusters of least ``importance`` per Gaussian to the patch until the
+    sketch layer of ``file_of(sketch, writer)`` (None: nothing to judge) ends within
+    ``config.max_sketch_share`` of it: the sketch and its writer."""
+    moved = 0
+    while refined is not None and sketch.clusters and config.max_sketch_share is not None:
+        data = file_of(sketch, writer)
+        keep = None if data is None else \
+            _clusters_to_keep(data, refined, importance, config.max_sketch_share)
+        if keep is None:
+            break
+        before = len(refined.patch)
+        refined = _keep_clusters(refined, keep)
+        moved += len(refined.patch) - before
+        sketch = encode_sketch(cloud, refined, found, config, progress, times)
+        writer = dataclasses.replace(writer, sketch=sketch.clusters)
+    sketch.stats["moved_to_patch_for_share"] = moved
+    return sketch, writer
 
 
 def _clusters_to_keep(data: bytes, refined: RefineResult, importance: np.ndarray,

@@ -101,7 +101,8 @@ def run_encode(ply: Path, extra: list[str], work: Path) -> tuple[Path, dict, flo
 
 def sweep(args) -> None:
     rows = json.loads(args.json.read_text()) if args.json.exists() else []
-    done = {(r["scene"], r["method"], str(r["param"])) for r in rows}
+    done = {(r["scene"], r["method"], "-" if r["method"] == "spz" else str(r["param"]))
+            for r in rows}  # an SPZ row's param names the tool; its curve point is "-"
 
     def record(row: dict) -> None:
         rows.append(row)

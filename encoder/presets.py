@@ -32,7 +32,7 @@ _SH_TRIPLETS = {"SH_BAND_1": 3, "SH_BAND_2": 3, "SH_BAND_3": 3}
 #: (300 steps), quantizing with the balanced codebooks cost 7.6 dB (46.5 -> 38.9 dB, 6 of them in
 #: the SH band vectors), with these 1.0 dB (45.6 dB), for a file 1.45x as large at the same count
 #: (docs/RESULTS.md, section 11). The prune factors below set the rate instead.
-_RETRAIN_ENTRY_DIMS = {"SCALE": 1, "ROTATION": 2, "OPACITY": 1, "COLOR_DC": 1, **_SH_TRIPLETS}
+RETRAIN_ENTRY_DIMS = {"SCALE": 1, "ROTATION": 2, "OPACITY": 1, "COLOR_DC": 1, **_SH_TRIPLETS}
 
 PRESETS: dict[str, dict] = {
     # Smallest files: whole-vector codebooks everywhere and more sketch. Quality depends on the
@@ -66,7 +66,7 @@ def preset_config(name: str, base: EncoderConfig | None = None,
     return dataclasses.replace(
         base,
         patch=dataclasses.replace(base.patch, entry_dims=dict(
-            _RETRAIN_ENTRY_DIMS if retrain else values["entry_dims"])),
+            RETRAIN_ENTRY_DIMS if retrain else values["entry_dims"])),
         refine=dataclasses.replace(base.refine, tau_max=values["tau_max"]),
         retrain=retrain_config,
     )

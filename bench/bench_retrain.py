@@ -6,7 +6,7 @@ patch) against renders of the original at ``spcodec eval``'s 8 held-out views, a
 
 ``quantize``: how much each attribute's codebook costs after retraining. The patch is pruned by
 importance, retrained for ``--steps``, then quantized with each preset's codebooks of a no-retrain
-encode and with the retraining ones; PSNR on 12 training views with everything quantized and with
+encode; PSNR on 12 training views with everything quantized and with
 one attribute at a time.
 
     python bench/bench_retrain.py convergence SCENE.ply --method importance [--factor 4]
@@ -28,7 +28,7 @@ from spcodec.decoder.layers import fill_patch_attributes
 from spcodec.encoder.evaluate import EvalConfig, evaluate_against_reference
 from spcodec.encoder.importance import blend_weights
 from spcodec.encoder.patch import PatchEncoder, quantized_cloud
-from spcodec.encoder.presets import RETRAIN_ENTRY_DIMS, preset_config
+from spcodec.encoder.presets import preset_config
 from spcodec.encoder.render import GaussianParams, RenderSettings, render
 from spcodec.encoder.retrain import RetrainConfig, RetrainStage, RunControl, spread
 from spcodec.encoder.training.loop import FitLoop
@@ -83,8 +83,6 @@ def quantize(args) -> None:
 
     print(f"retrained ({len(keep)} Gaussians, {args.steps} steps): {psnr(trained):.2f} dB")
     books = {name: preset_config(name).patch for name in ("lowrate", "balanced", "highrate")}
-    books["retraining"] = preset_config("balanced", retrain=True).patch
-    assert books["retraining"].entry_dims == RETRAIN_ENTRY_DIMS
     for name, patch_config in books.items():
         stage.patch_encoder = PatchEncoder(patch_config)
         quantized, _ = stage.quantize(trained)

@@ -26,36 +26,27 @@ from .retrain import RetrainConfig
 _SH_BANDS = {"SH_BAND_1": 9, "SH_BAND_2": 15, "SH_BAND_3": 21}
 _SH_TRIPLETS = {"SH_BAND_1": 3, "SH_BAND_2": 3, "SH_BAND_3": 3}
 
-#: Codebooks of a retrained patch, in every preset: one index per colour channel and per RGB SH
-#: coefficient. Pruning leaves a quarter to a sixteenth of the patch, so finer indices are cheap,
-#: and retraining moves the attributes off any grid the input had: on fourth_st retrained x4
-#: (300 steps), quantizing with the balanced codebooks cost 7.6 dB (46.5 -> 38.9 dB, 6 of them in
-#: the SH band vectors), with these 1.0 dB (45.6 dB), for a file 1.45x as large at the same count
-#: (docs/RESULTS.md, section 11). The prune factors below set the rate instead.
-RETRAIN_ENTRY_DIMS = {"SCALE": 1, "ROTATION": 2, "OPACITY": 1, "COLOR_DC": 1, **_SH_TRIPLETS}
-
 PRESETS: dict[str, dict] = {
     # Smallest files: whole-vector codebooks everywhere and more sketch. Quality depends on the
     # scene: fine on large Gaussians, poor on many small ones (donut 28.5 dB).
     "lowrate": dict(entry_dims={"SCALE": 3, "ROTATION": 4, "OPACITY": 1, "COLOR_DC": 3,
                                 **_SH_BANDS}, tau_max=0.3,
-                    retrain=dict(patch_downsample=16.0, iterations=3000)),
+                    retrain=dict(patch_downsample=8.0, iterations=3000)),
     # The default: >= 37 dB on every shared scene at about half of SPZ's size.
     "balanced": dict(entry_dims={"SCALE": 1, "ROTATION": 2, "OPACITY": 1, "COLOR_DC": 3,
                                  **_SH_BANDS}, tau_max=0.1,
-                     retrain=dict(patch_downsample=8.0, iterations=3000)),
+                     retrain=dict(patch_downsample=4.0, iterations=3000)),
     # Near-transparent: per-channel colour and one index per RGB SH coefficient (>= 42 dB).
     "highrate": dict(entry_dims={"SCALE": 1, "ROTATION": 2, "OPACITY": 1, "COLOR_DC": 1,
                                  **_SH_TRIPLETS}, tau_max=0.1,
-                     retrain=dict(patch_downsample=4.0, iterations=3000)),
+                     retrain=dict(patch_downsample=2.0, iterations=3000)),
 }
 
 
 def preset_config(name: str, base: EncoderConfig | None = None,
                   retrain: bool = False) -> EncoderConfig:
     """``base`` (default: a fresh EncoderConfig) with the preset's settings applied; with
-    ``retrain``, its retraining settings instead (on ``base.retrain`` or a default
-    RetrainConfig), whose codebooks are the finer ones of a retrained patch."""
+    ``retrain``, also its retraining settings (on ``base.retrain`` or a default RetrainConfig)."""
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}: use one of {', '.join(PRESETS)}")
     base = base or EncoderConfig()
@@ -65,8 +56,7 @@ def preset_config(name: str, base: EncoderConfig | None = None,
         retrain_config = dataclasses.replace(base.retrain or RetrainConfig(), **values["retrain"])
     return dataclasses.replace(
         base,
-        patch=dataclasses.replace(base.patch, entry_dims=dict(
-            RETRAIN_ENTRY_DIMS if retrain else values["entry_dims"])),
+        patch=dataclasses.replace(base.patch, entry_dims=dict(values["entry_dims"])),
         refine=dataclasses.replace(base.refine, tau_max=values["tau_max"]),
         retrain=retrain_config,
     )

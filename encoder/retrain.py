@@ -49,9 +49,8 @@ from .training.targets import Targets
 class RetrainConfig:
     """Settings of the retraining stage (stored in the file's metadata)."""
 
-    #: Keep ``1 / patch_downsample`` of the patch Gaussians (the paper sweeps 1..20; 1 = keep all;
-    #: the balanced preset's factor, which pairs it with finer codebooks: encoder/presets.py).
-    patch_downsample: float = 8.0
+    #: Keep ``1 / patch_downsample`` of the patch Gaussians (the paper sweeps 1..20; 1 = keep all).
+    patch_downsample: float = 4.0
     #: How survivors are chosen: "importance" (largest blend weight over the training views) or
     #: "uniform" (random, the paper's). See docs/RESULTS.md for the comparison behind the default.
     prune: PruneMethod = "importance"

@@ -287,7 +287,7 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
                       "(default: none, the preset's downsample)")
     size.add_argument("--patch-downsample", type=Bounded(float, 1), metavar="N",
                       help="keep 1/N of the patch Gaussians: %(type)s (default: set by --preset: "
-                      "lowrate 16, balanced 8, highrate 4)")
+                      "lowrate 8, balanced 4, highrate 2)")
     size.add_argument("--prune", choices=["importance", "uniform"], default=None,
                       help="which patch Gaussians survive: the largest blend weight over the "
                       "training views, or uniformly at random as in the paper (default: "

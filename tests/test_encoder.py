@@ -178,21 +178,3 @@ def test_defaults_are_the_balanced_preset_and_presets_order_by_size():
     assert sizes["lowrate"] < sizes["balanced"] < sizes["highrate"]
     with pytest.raises(ValueError, match="unknown preset"):
         preset_config("ultra")
-
-
-def test_retraining_presets_prune_harder_with_finer_codebooks():
-    """A retrained patch is quantized with one index per colour channel and SH coefficient in
-    every preset (its attributes are off any grid the input had); the prune factor sets the rate,
-    and the default RetrainConfig is the balanced one."""
-    from spcodec.encoder.presets import PRESETS, preset_config
-    from spcodec.encoder.retrain import RetrainConfig
-
-    configs = {name: preset_config(name, retrain=True) for name in PRESETS}
-    factors = [configs[n].retrain.patch_downsample for n in ("lowrate", "balanced", "highrate")]
-    assert factors[0] > factors[1] > factors[2]
-    assert configs["balanced"].retrain.patch_downsample == RetrainConfig().patch_downsample
-    for name, config in configs.items():
-        coarse = preset_config(name).patch.entry_dims
-        fine = config.patch.entry_dims
-        assert fine["COLOR_DC"] == 1 and fine["SH_BAND_3"] == 3, name
-        assert all(fine[a] <= coarse[a] for a in coarse), name

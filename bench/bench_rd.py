@@ -48,7 +48,9 @@ from scenes import data_dir
 LEGO_DATASET = "nerf_synthetic_lego"
 METHODS = ("sp", "pr", "noretrain", "spz")
 LABELS = {"sp": "S&P++ (retrained)", "pr": "Prune&Retrain", "noretrain": "no-retrain presets",
-          "spz": "SPZ", "original": "original"}
+          "spz": "SPZ", "original": "original",
+          # rows added by hand from single encodes (docs/RESULTS.md says which)
+          "sp-highrate": "S&P++, highrate codebooks", "sp-target": "S&P++ --target-size"}
 
 
 def scene_setup(name: str, args) -> dict:
@@ -151,7 +153,8 @@ def plot(args) -> None:
     rows = json.loads(args.json.read_text())
     args.plot.mkdir(parents=True, exist_ok=True)
     styles = {"sp": ("o-", "C0"), "pr": ("s--", "C1"), "noretrain": ("^:", "C2"),
-              "spz": ("*", "C3"), "original": ("D", "k")}
+              "spz": ("*", "C3"), "original": ("D", "k"), "sp-highrate": ("v-.", "C4"),
+              "sp-target": ("P", "C0")}
     for name in dict.fromkeys(r["scene"] for r in rows):
         fig, ax = plt.subplots(figsize=(6, 4.2), dpi=120)
         for method, (style, colour) in styles.items():

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import subprocess
 import sys
@@ -145,10 +146,17 @@ def sweep(args) -> None:
                                 reported=stats.get("quality"), retrain=stats.get("retrain")))
 
 
+def _minor_label(value: float, _position) -> str:
+    """Plain labels at 2, 3 and 5 times a power of ten on the log size axis, none between."""
+    lead = round(value / 10 ** math.floor(math.log10(value)))
+    return f"{value:g}" if lead in (2, 3, 5) else ""
+
+
 def plot(args) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter
 
     rows = json.loads(args.json.read_text())
     args.plot.mkdir(parents=True, exist_ok=True)
@@ -164,6 +172,8 @@ def plot(args) -> None:
                 ax.plot([p[0] / 1e6 for p in pts], [p[1] for p in pts], style, color=colour,
                         label=LABELS[method], markersize=9 if method == "spz" else 5)
         ax.set_xscale("log")
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.xaxis.set_minor_formatter(FuncFormatter(_minor_label))
         ax.set_xlabel("file size (MB, log scale)")
         against = "test images" if name == "lego" else "renders of the original"
         ax.set_ylabel(f"PSNR (dB) against {against}")

@@ -93,11 +93,9 @@ def factor_trial(sketch: "SketchOutcome", patch: GaussianCloud, writer: "SceneWr
     within the gains of training, cheap enough to size the sketch layer's share before training."""
     if config.retrain is None or config.target_size is not None:
         return None
-    encoder = PatchEncoder(config.patch, seed=config.seed)
-    patch_weights = weights[sketch.patch_idx]
-    top = prune_by_importance(patch_weights, kept_count(len(patch),
-                                                        config.retrain.patch_downsample))
-    return writer.write(encoder.encode(patch.subset(top), importance=patch_weights[top]))
+    return _pruned_file(writer, PatchEncoder(config.patch, seed=config.seed), patch,
+                        weights[sketch.patch_idx],
+                        kept_count(len(patch), config.retrain.patch_downsample))
 
 
 def encode_pruned_patch(cloud: GaussianCloud, sketch: "SketchOutcome", patch: GaussianCloud,
@@ -217,12 +215,16 @@ def _trial(writer: "SceneWriter", encoder: PatchEncoder, patch: GaussianCloud,
            weights: np.ndarray):
     """count -> bytes of the file with the ``count`` most important patch Gaussians, coded
     without retraining (rate control's size model)."""
-    def size(count: int) -> int:
-        if count == 0:
-            return len(writer.write(None))
-        top = prune_by_importance(weights, count)
-        return len(writer.write(encoder.encode(patch.subset(top), importance=weights[top])))
-    return size
+    return lambda count: len(_pruned_file(writer, encoder, patch, weights, count))
+
+
+def _pruned_file(writer: "SceneWriter", encoder: PatchEncoder, patch: GaussianCloud,
+                 weights: np.ndarray, count: int) -> bytes:
+    """The file with only the ``count`` most important patch Gaussians, coded as they are."""
+    if count == 0:
+        return writer.write(None)
+    top = prune_by_importance(weights, count)
+    return writer.write(encoder.encode(patch.subset(top), importance=weights[top]))
 
 
 def _sized(writer: "SceneWriter", encoder: PatchEncoder, trained: GaussianCloud,

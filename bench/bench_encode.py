@@ -51,7 +51,7 @@ def previous_config(base: EncoderConfig | None = None) -> EncoderConfig:
 def against_previous(names: list[str], repeat: int, codec: str) -> None:
     """Stage times (best of ``repeat``), size and PSNR of the default against the previous one."""
     from spcodec.decoder import decode
-    from spcodec.encoder.evaluate import EvalConfig, evaluate_against_reference
+    from spcodec.imaging.evaluate import EvalConfig, evaluate_against_reference
 
     rows = []
     for name in names:

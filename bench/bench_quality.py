@@ -23,9 +23,9 @@ import time
 from pathlib import Path
 
 import spcodec
-from spcodec.encoder.evaluate import EvalConfig, evaluate_against_reference
 from spcodec.encoder.pipeline import encode
 from spcodec.encoder.presets import PRESETS, preset_config
+from spcodec.imaging.evaluate import EvalConfig, evaluate_against_reference
 
 from scenes import data_dir  # bench/ is on sys.path
 

@@ -41,7 +41,7 @@ import time
 from pathlib import Path
 
 import spcodec
-from spcodec.encoder.evaluate import EvalConfig, evaluate_against_dataset, evaluate_against_reference
+from spcodec.imaging.evaluate import EvalConfig, evaluate_against_dataset, evaluate_against_reference
 
 from bench_quality import SCENES, spz_round_trip  # bench/ is on sys.path
 from scenes import data_dir

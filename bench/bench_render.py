@@ -38,7 +38,7 @@ def overview_camera(means, size: int, fov_deg: float = 50.0):
     """A camera outside the robust bounding box that sees all of it."""
     import numpy as np
 
-    from spcodec.encoder.cameras import Camera
+    from spcodec.imaging.cameras import Camera
 
     lo, hi = np.percentile(means, [1, 99], axis=0)
     centre = (lo + hi) / 2
@@ -61,8 +61,8 @@ def run_case(scene: str, size: int, reps: int, backend: str, backward: str,
     import torch
 
     import spcodec
-    from spcodec.encoder.render import GaussianParams, RenderSettings, render
-    from spcodec.encoder.render.torch_backend import render_torch
+    from spcodec.imaging.render import GaussianParams, RenderSettings, render
+    from spcodec.imaging.render.torch_backend import render_torch
 
     cloud = spcodec.read_ply(SCENES[scene])
     camera = overview_camera(cloud.means, size)

@@ -41,8 +41,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
 
-from spcodec.encoder.images import read_image  # noqa: E402
-from spcodec.encoder.metrics import psnr  # noqa: E402
+from spcodec.imaging.images import read_image  # noqa: E402
+from spcodec.imaging.metrics import psnr  # noqa: E402
 
 from scenes import data_dir  # noqa: E402  bench/ is on sys.path
 from viewer_harness import drive, missing_tools, page_url, serving  # noqa: E402

@@ -46,16 +46,16 @@ import numpy as np
 import torch
 
 from spcodec.cloud import SH_REST_COUNTS, GaussianCloud
-from spcodec.encoder.datasets import load_dataset
-from spcodec.encoder.evaluate import EvalConfig, evaluate_against_dataset
 from spcodec.encoder.progress import StageReporter
-from spcodec.encoder.render import GaussianParams, RenderSettings
-from spcodec.encoder.render.sh import SH_C0
 from spcodec.encoder.training.densify import REFERENCE_ITERATIONS, Densifier, DensifyConfig
 from spcodec.encoder.training.loop import FitLoop, StepReport
 from spcodec.encoder.training.optim import FreeGaussians, LearningRates
 from spcodec.encoder.training.targets import Targets, dataset_targets
 from spcodec.fileio import atomic_write
+from spcodec.imaging.datasets import load_dataset
+from spcodec.imaging.evaluate import EvalConfig, evaluate_against_dataset
+from spcodec.imaging.render import GaussianParams, RenderSettings
+from spcodec.imaging.render.sh import SH_C0
 from spcodec.ply import write_ply
 
 SH_EVERY = 1000

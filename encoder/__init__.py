@@ -2,9 +2,9 @@
 
 ``spcodec.encoder.encode(cloud, config)`` runs the no-retrain pipeline (categorize, refine, sketch,
 patch, write); :class:`EncoderConfig` holds every parameter; :func:`preset_config` gives the named
-operating points. The renderer, datasets, metrics and evaluation live in submodules. Names are
-resolved on first use, so importing a light submodule (``spcodec.encoder.cameras``) loads neither
-scikit-learn nor torch.
+operating points. The picture tools it trains and judges with (renderer, cameras, datasets,
+metrics, evaluation) are a package of their own, :mod:`spcodec.imaging`. Names are resolved on
+first use, so ``import spcodec.encoder`` alone loads neither scikit-learn nor torch.
 """
 
 from __future__ import annotations

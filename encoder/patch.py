@@ -339,7 +339,7 @@ class PatchEncoder:
             return footprint_importance(cloud)
         if cfg.importance != "blend":
             raise ValueError(f"unknown importance {cfg.importance!r}: use blend or footprint")
-        from .importance import training_view_weights
+        from spcodec.imaging.importance import training_view_weights
 
         return training_view_weights(cloud, cfg.importance_views, cfg.importance_resolution,
                                      seed=self.seed, jobs=self.jobs or default_jobs())

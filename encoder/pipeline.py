@@ -212,7 +212,7 @@ def judge(data: bytes, original: GaussianCloud, retrain: "RetrainConfig",
     """Quality of the written file as ``spcodec eval`` measures it with its defaults: against the
     dataset's test images, or against renders of the original at the held-out sampled views
     (with the encode's ``up`` and ``antialiased``), so the two commands report the same PSNR."""
-    from .evaluate import EvalConfig, evaluate_against_dataset, evaluate_against_reference
+    from spcodec.imaging.evaluate import EvalConfig, evaluate_against_dataset, evaluate_against_reference
 
     device = control.device if control is not None else "auto"
     decoded = decode_layers(data).cloud

@@ -19,11 +19,11 @@ import numpy as np
 import torch
 
 from spcodec.cloud import GaussianCloud
+from spcodec.imaging.importance import blend_weights
+from spcodec.imaging.render import RenderSettings, resolve_device
 
-from .importance import blend_weights
 from .patch import PatchEncoder, PatchEncoding, Quantized
 from .ratecontrol import TRAIN_MARGIN, RatePlan, fit_count, plan_count, within
-from .render import RenderSettings, resolve_device
 from .retrain import RetrainConfig, RetrainStage, RunControl, spread
 from .training.checkpoint import Checkpointer, fingerprint
 from .training.prune import kept_count, prune_by_importance, select
@@ -201,10 +201,10 @@ def build_targets(cloud: GaussianCloud, config: RetrainConfig, dataset: str | Pa
                   device) -> Targets:
     """Dataset training images, or renders of ``cloud`` at sampled training views."""
     if dataset is not None:
-        from .datasets import load_dataset
+        from spcodec.imaging.datasets import load_dataset
         return dataset_targets(load_dataset(dataset, downscale=config.downscale), device,
                                config.max_views)
-    from .views import sample_views
+    from spcodec.imaging.views import sample_views
     cameras = sample_views(cloud, config.views, resolution=(config.resolution, config.resolution),
                            split="train", up=config.up)
     return distillation_targets(cloud, cameras, config.render_settings(DISTILLATION_BACKGROUND),

@@ -33,10 +33,10 @@ import torch
 
 from spcodec.cloud import GaussianCloud
 from spcodec.errors import Interrupted, UsageError
+from spcodec.imaging.importance import blend_weights
+from spcodec.imaging.render import GaussianParams, RenderSettings
 
-from .importance import blend_weights
 from .patch import PatchEncoder, Quantized
-from .render import GaussianParams, RenderSettings
 from .training.checkpoint import Checkpointer
 from .training.loop import FitLoop, StepReport
 from .training.optim import FreeGaussians, LearningRates
@@ -272,7 +272,7 @@ class RetrainStage:
 
 
 def _device(spec: str) -> torch.device:
-    from .render import resolve_device
+    from spcodec.imaging.render import resolve_device
     return resolve_device(spec)
 
 

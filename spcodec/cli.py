@@ -496,12 +496,12 @@ def _add_eval(p: argparse.ArgumentParser) -> None:
 @command("eval", "measure PSNR/SSIM (and LPIPS when available) against a dataset or a reference",
          _add_eval)
 def cmd_eval(args: argparse.Namespace) -> int:
-    from .encoder.evaluate import (
+    from .fileio import check_writable_folder
+    from .imaging.evaluate import (
         EvalConfig,
         evaluate_against_dataset,
         evaluate_against_reference,
     )
-    from .fileio import check_writable_folder
 
     save = check_writable_folder(args.save_renders) if args.save_renders else None
     config = EvalConfig(views=args.views, resolution=args.resolution, downscale=args.downscale,
@@ -542,10 +542,10 @@ def _add_render(p: argparse.ArgumentParser) -> None:
 @command("render", "render a view (or a turntable contact sheet) of an .spc or .ply to a PNG",
          _add_render)
 def cmd_render(args: argparse.Namespace) -> int:
-    from .encoder.images import contact_sheet, write_png
-    from .encoder.render import GaussianParams, RenderSettings, render_image, resolve_device
-    from .encoder.views import sample_views
     from .fileio import check_writable
+    from .imaging.images import contact_sheet, write_png
+    from .imaging.render import GaussianParams, RenderSettings, render_image, resolve_device
+    from .imaging.views import sample_views
 
     if args.turntable is None and args.view >= args.views:
         raise UsageError(f"--view must be in 0..{args.views - 1} (the --views {args.views} "

@@ -52,7 +52,7 @@ def run_demo(out_dir: Path, seed: int = 0) -> int:
 
 def _report_quality(decoded, original) -> None:
     """PSNR/SSIM of the decoded scene against the original at sampled views, if torch is here."""
-    from .encoder.evaluate import EvalConfig, evaluate_against_reference
+    from .imaging.evaluate import EvalConfig, evaluate_against_reference
 
     try:
         report = evaluate_against_reference(decoded, original, EvalConfig(

@@ -72,8 +72,8 @@ def write_transforms_dataset(root: Path, cloud, cameras_train, cameras_test) -> 
 
     import numpy as np
 
-    from spcodec.encoder.images import write_png
-    from spcodec.encoder.render import render_image
+    from spcodec.imaging.images import write_png
+    from spcodec.imaging.render import render_image
 
     root.mkdir(parents=True, exist_ok=True)
     for split, cams in (("train", cameras_train), ("test", cameras_test)):

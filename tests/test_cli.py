@@ -91,7 +91,7 @@ def test_a_missing_extra_is_named_in_one_line():
 
 
 def test_encoder_api_is_reachable_without_loading_heavy_modules_eagerly():
-    code = ("import sys, spcodec.encoder, spcodec.encoder.cameras; "
+    code = ("import sys, spcodec.encoder, spcodec.imaging.cameras; "
             "assert 'sklearn' not in sys.modules and 'torch' not in sys.modules; "
             "from spcodec.encoder import encode, EncoderConfig; assert callable(encode)")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)

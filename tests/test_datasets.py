@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from spcodec.encoder.datasets import (
+from spcodec.errors import UsageError
+from spcodec.imaging.datasets import (
     DatasetError,
     Distortion,
     MissingImageWarning,
@@ -21,15 +22,14 @@ from spcodec.encoder.datasets import (
     detect_format,
     load_dataset,
 )
-from spcodec.encoder.datasets.colmap import pinhole_and_distortion
-from spcodec.encoder.datasets.colmap_model import (
+from spcodec.imaging.datasets.colmap import pinhole_and_distortion
+from spcodec.imaging.datasets.colmap_model import (
     quaternion_to_matrix,
     read_cameras_binary,
     read_model,
     read_points_binary,
 )
-from spcodec.encoder.datasets.llff import load_llff
-from spcodec.errors import UsageError
+from spcodec.imaging.datasets.llff import load_llff
 
 DATA = Path(os.environ.get("SPCODEC_DATA", "/work/shared/data"))
 

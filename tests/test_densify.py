@@ -18,9 +18,6 @@ from hypothesis import strategies as st
 
 import spcodec
 from spcodec.cloud import GaussianCloud
-from spcodec.encoder.cameras import Camera
-from spcodec.encoder.evaluate import EvalConfig, evaluate_against_dataset
-from spcodec.encoder.render import RenderSettings, render
 from spcodec.encoder.training.densify import (
     Densifier,
     DensifyConfig,
@@ -31,6 +28,9 @@ from spcodec.encoder.training.densify import (
 from spcodec.encoder.training.loop import FitLoop
 from spcodec.encoder.training.optim import FreeGaussians, LearningRates
 from spcodec.encoder.training.targets import distillation_targets
+from spcodec.imaging.cameras import Camera
+from spcodec.imaging.evaluate import EvalConfig, evaluate_against_dataset
+from spcodec.imaging.render import RenderSettings, render
 
 from conftest import REPO, write_transforms_dataset
 
@@ -166,7 +166,7 @@ def test_split_children_are_drawn_from_the_parent():
     children = densifier.split_children(model, torch.ones(4000, dtype=torch.bool))
     offsets = (children["means"] - many["means"].repeat_interleave(2, dim=0)).double()
     q = torch.tensor(cloud.quats[0], dtype=torch.float64)
-    from spcodec.encoder.render.projection import rotation_entries
+    from spcodec.imaging.render.projection import rotation_entries
     rot = torch.tensor([[float(e) for e in row] for row in rotation_entries(q[None])],
                        dtype=torch.float64)
     local_std = (offsets @ rot).std(dim=0)  # back in the Gaussian's frame
@@ -260,7 +260,7 @@ def _load_bench():
     return sys.modules[name]
 
 
-@pytest.mark.filterwarnings("ignore::spcodec.encoder.evaluate.DatasetMismatchWarning")
+@pytest.mark.filterwarnings("ignore::spcodec.imaging.evaluate.DatasetMismatchWarning")
 def test_train_vanilla_writes_a_model_and_its_record(tmp_path):
     truth = cloud_of(120, seed=9, degree=1, spread=1.0, scale=0.15, opacity=0.9)
     cams = ring_cameras(10)

@@ -10,8 +10,8 @@ import pytest
 
 import spcodec
 from spcodec.cli import main
-from spcodec.encoder.cameras import Camera
-from spcodec.encoder.evaluate import (
+from spcodec.imaging.cameras import Camera
+from spcodec.imaging.evaluate import (
     MISMATCH_PSNR_DB,
     DatasetMismatchWarning,
     EvalConfig,
@@ -19,8 +19,8 @@ from spcodec.encoder.evaluate import (
     evaluate_against_reference,
     warn_if_mismatched,
 )
-from spcodec.encoder.images import read_image, write_png
-from spcodec.encoder.render import render_image
+from spcodec.imaging.images import read_image, write_png
+from spcodec.imaging.render import render_image
 from spcodec.synthetic import make_scene
 
 SMALL = EvalConfig(views=3, resolution=96, device="cpu")

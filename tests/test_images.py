@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from spcodec.encoder.images import (
+from spcodec.imaging.images import (
     ImageReadError,
     composite_alpha,
     contact_sheet,

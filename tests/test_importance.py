@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from spcodec.encoder.importance import blend_weights
-from spcodec.encoder.render import RenderSettings, render
-from spcodec.encoder.render.projection import project
+from spcodec.imaging.importance import blend_weights
+from spcodec.imaging.render import RenderSettings, render
+from spcodec.imaging.render.projection import project
 
 from test_render import axis_camera, make_params, random_scene
 
@@ -73,8 +73,8 @@ def test_weights_add_over_views_and_follow_the_cloud() -> None:
 
 
 def test_training_view_weights_use_training_views_on_any_number_of_threads() -> None:
-    from spcodec.encoder.importance import training_view_weights
-    from spcodec.encoder.views import sample_views
+    from spcodec.imaging.importance import training_view_weights
+    from spcodec.imaging.views import sample_views
 
     cloud = random_scene(200, degree=2, seed=5, dtype=torch.float32).to_cloud()
     one = training_view_weights(cloud, 3, (48, 36), seed=2)

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from spcodec.encoder import metrics
-from spcodec.encoder.metrics import (
+from spcodec.imaging import metrics
+from spcodec.imaging.metrics import (
     PSNR_CAP_DB,
     MetricUnavailable,
     image_metrics,

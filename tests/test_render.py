@@ -14,8 +14,8 @@ import torch
 
 from spcodec import read_ply
 from spcodec.cloud import GaussianCloud
-from spcodec.encoder.cameras import Camera
-from spcodec.encoder.render import (
+from spcodec.imaging.cameras import Camera
+from spcodec.imaging.render import (
     GaussianParams,
     RenderSettings,
     render,
@@ -23,10 +23,10 @@ from spcodec.encoder.render import (
     resolve_backend,
     resolve_device,
 )
-from spcodec.encoder.render.gsplat_backend import GSPLAT_MAX_ALPHA, gsplat_problem
-from spcodec.encoder.render.projection import project
-from spcodec.encoder.render.sh import SH_C0, sh_basis
-from spcodec.encoder.render.torch_backend import render_torch
+from spcodec.imaging.render.gsplat_backend import GSPLAT_MAX_ALPHA, gsplat_problem
+from spcodec.imaging.render.projection import project
+from spcodec.imaging.render.sh import SH_C0, sh_basis
+from spcodec.imaging.render.torch_backend import render_torch
 
 from conftest import real_file
 
@@ -315,8 +315,8 @@ def _with_culled(params: GaussianParams) -> GaussianParams:
 
 
 def test_means2d_gradient_equals_autograd_through_the_blend() -> None:
-    from spcodec.encoder.render.binning import bin_gaussians
-    from spcodec.encoder.render.composite import BlendConfig, blend_autograd
+    from spcodec.imaging.render.binning import bin_gaussians
+    from spcodec.imaging.render.composite import BlendConfig, blend_autograd
 
     params = _with_culled(random_scene(120, 1, seed=21, opacity_range=(0.2, 0.95)))
     cam = axis_camera(40, 30, 30.0)
@@ -583,7 +583,7 @@ def test_gsplat_arguments_follow_its_documented_contract() -> None:
     # runs without CUDA: a stand-in for gsplat.rasterization checks the 1.5.x argument contract,
     # undoes the activations and renders with our renderer; the wrapped result must then equal
     # the torch renderer's exactly (catches activation, shape and output-layout slips)
-    from spcodec.encoder.render.gsplat_backend import gsplat_arguments, result_from_gsplat
+    from spcodec.imaging.render.gsplat_backend import gsplat_arguments, result_from_gsplat
 
     params = random_scene(50, 3, seed=9, dtype=torch.float32, spread=3.0)
     cam = Camera.look_at(np.array([0.1, -0.2, -0.4]), np.array([0.0, 0.0, 3.0]),

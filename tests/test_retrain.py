@@ -19,12 +19,12 @@ import torch
 
 import spcodec
 from spcodec.cli import main
-from spcodec.encoder.cameras import Camera
-from spcodec.encoder.evaluate import DatasetMismatchWarning, EvalConfig, evaluate_against_reference
 from spcodec.encoder.pipeline import EncoderConfig, SceneWriter, encode
 from spcodec.encoder.retrain import RetrainConfig, RunControl
-from spcodec.encoder.views import sample_views
 from spcodec.errors import Interrupted, UsageError
+from spcodec.imaging.cameras import Camera
+from spcodec.imaging.evaluate import DatasetMismatchWarning, EvalConfig, evaluate_against_reference
+from spcodec.imaging.views import sample_views
 from spcodec.synthetic import make_scene
 
 from conftest import real_file, write_transforms_dataset

@@ -54,12 +54,12 @@ def scene(tmp_path_factory):
 
 
 def image(path) -> np.ndarray:
-    from spcodec.encoder.images import read_image
+    from spcodec.imaging.images import read_image
     return read_image(path)
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    from spcodec.encoder.metrics import psnr as metric
+    from spcodec.imaging.metrics import psnr as metric
     return metric(a, b)
 
 

@@ -12,8 +12,9 @@ import pytest
 
 import spcodec
 from spcodec.cloud import GaussianCloud
-from spcodec.encoder.cameras import Camera
-from spcodec.encoder.views import (
+from spcodec.errors import UsageError
+from spcodec.imaging.cameras import Camera
+from spcodec.imaging.views import (
     ViewSamplingWarning,
     parse_up,
     robust_bounds,
@@ -21,7 +22,6 @@ from spcodec.encoder.views import (
     sample_views_report,
     view_coverage,
 )
-from spcodec.errors import UsageError
 
 DATA = Path(os.environ.get("SPCODEC_DATA", "/work/shared/data"))
 RES = (160, 120)

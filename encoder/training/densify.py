@@ -35,8 +35,9 @@ from dataclasses import dataclass, replace
 
 import torch
 
-from ..render import RenderResult
-from ..render.projection import rotation_entries
+from spcodec.imaging.render import RenderResult
+from spcodec.imaging.render.projection import rotation_entries
+
 from .optim import FreeGaussians
 
 REFERENCE_ITERATIONS = 30_000

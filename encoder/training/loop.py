@@ -20,7 +20,8 @@ from typing import Callable, Protocol
 import numpy as np
 import torch
 
-from ..render import GaussianParams, RenderResult, RenderSettings, render
+from spcodec.imaging.render import GaussianParams, RenderResult, RenderSettings, render
+
 from .loss import DSSIM_WEIGHT, photometric_loss, psnr_of
 from .targets import Targets, TargetView
 

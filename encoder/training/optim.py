@@ -7,7 +7,7 @@ the rest (colour 2.5e-3, higher SH bands 20 times less, opacity 2.5e-2, log-scal
 1e-3). Positions are scaled by the extent so a 0.3-unit object and a 300-unit room move alike.
 
 Free Gaussians are held as six leaf tensors (:class:`FreeGaussians`) rather than the renderer's
-:class:`~spcodec.encoder.render.GaussianParams`, because the DC colour and the higher SH bands take
+:class:`~spcodec.imaging.render.GaussianParams`, because the DC colour and the higher SH bands take
 different rates; :meth:`FreeGaussians.params` joins them for the renderer.
 """
 
@@ -20,8 +20,7 @@ import numpy as np
 import torch
 
 from spcodec.cloud import GaussianCloud
-
-from ..render import GaussianParams
+from spcodec.imaging.render import GaussianParams
 
 
 @dataclass(frozen=True)

@@ -22,9 +22,9 @@ import torch
 
 from spcodec.attributes import OPACITY_MIN, PatchAttribute
 from spcodec.cloud import GaussianCloud
+from spcodec.imaging.render import GaussianParams
 from spcodec.sections import Codebook
 
-from ..render import GaussianParams
 from .optim import LearningRates
 
 

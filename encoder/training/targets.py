@@ -1,7 +1,7 @@
 """What a training loop fits: posed target images, from a dataset or rendered from the original.
 
 * **Distillation** (a PLY and nothing else): the original model is rendered at views sampled
-  around it (:func:`~spcodec.encoder.views.sample_views`, split ``"train"``, which never shares a
+  around it (:func:`~spcodec.imaging.views.sample_views`, split ``"train"``, which never shares a
   camera with the ``"eval"`` views that ``spcodec eval --reference`` judges by), and those renders
   are the targets.
 * **Dataset** (``--dataset DIR``): the dataset's training images; its test split stays held out for
@@ -21,9 +21,9 @@ import torch
 
 from spcodec.cloud import GaussianCloud
 from spcodec.errors import UsageError
+from spcodec.imaging.cameras import Camera
+from spcodec.imaging.render import GaussianParams, RenderSettings, render
 
-from ..cameras import Camera
-from ..render import GaussianParams, RenderSettings, render
 from .loss import psnr_of
 from .optim import camera_extent
 
@@ -73,7 +73,7 @@ def distillation_targets(original: GaussianCloud, cameras: list[Camera], setting
 
 
 def dataset_targets(dataset, device: torch.device, max_views: int | None = None) -> Targets:
-    """The training split of a loaded :class:`~spcodec.encoder.datasets.Dataset`."""
+    """The training split of a loaded :class:`~spcodec.imaging.datasets.Dataset`."""
     chosen = dataset.train[:max_views] if max_views else dataset.train
     if not chosen:
         raise UsageError(f"dataset {dataset.root} has no training views")
@@ -92,9 +92,9 @@ def check_targets(model: GaussianCloud, targets: Targets, settings: RenderSettin
     """Refuse targets whose cameras do not see ``model`` (a UsageError when it covers less than
     :data:`MIN_VISIBLE_ALPHA` of their pixels on average: nothing could be trained), and warn
     when dataset images and model look unrelated before any training (the evaluation's
-    :func:`~spcodec.encoder.evaluate.warn_if_mismatched`). Returns the mean PSNR of ``model``
+    :func:`~spcodec.imaging.evaluate.warn_if_mismatched`). Returns the mean PSNR of ``model``
     over the targets."""
-    from ..evaluate import warn_if_mismatched
+    from spcodec.imaging.evaluate import warn_if_mismatched
 
     params = GaussianParams.from_cloud(model, device)
     alphas, psnrs = [], []

@@ -9,7 +9,8 @@ Public API (the only names other modules should rely on)::
     img = render_image(cloud, camera)      # numpy float32 (H, W, 3) in [0, 1]
     dev = resolve_device("auto")           # cuda when CUDA + gsplat work, else cpu
 
-This package is the only part of spcodec (with the encoder) that imports torch.
+Torch is imported here and by what trains with it (the encoder, :mod:`spcodec.imaging.training`),
+never by the decoder or the format layer.
 """
 
 from .api import render, render_image, resolve_backend, resolve_device

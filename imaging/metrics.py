@@ -1,6 +1,6 @@
 """Image-quality metrics as the 3DGS literature reports them: PSNR, SSIM and (when possible) LPIPS.
 
-Images are float arrays (H, W, 3) in [0, 1] (see :mod:`spcodec.encoder.images`); values are used as
+Images are float arrays (H, W, 3) in [0, 1] (see :mod:`spcodec.imaging.images`); values are used as
 given (clamp renders to [0, 1] first, as 3DGS does). numpy only, except:
 
 * :func:`lpips`, which needs the ``lpips`` package *and* its weights already on disk (it never

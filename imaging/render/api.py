@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from spcodec.cloud import GaussianCloud
-from spcodec.encoder.cameras import Camera
+from spcodec.imaging.cameras import Camera
 
 from .gsplat_backend import gsplat_problem, render_gsplat
 from .params import GaussianParams

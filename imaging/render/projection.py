@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import torch
 
-from spcodec.encoder.cameras import Camera
+from spcodec.imaging.cameras import Camera
 
 from .params import GaussianParams
 from .settings import ALPHA_THRESHOLD, BLUR_VARIANCE, RenderSettings

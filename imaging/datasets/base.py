@@ -1,6 +1,6 @@
 """The dataset model: views (camera + lazily loaded image), splits, errors and warnings.
 
-Every loader produces the same :class:`Dataset`: pinhole :class:`~spcodec.encoder.cameras.Camera`
+Every loader produces the same :class:`Dataset`: pinhole :class:`~spcodec.imaging.cameras.Camera`
 objects in OpenCV conventions (already undistorted and downscaled) and images that are read only
 when asked for, because a real capture does not fit in memory as float32 (fox: 67 x 25 MB).
 """
@@ -118,7 +118,7 @@ class Dataset:
 
 
 def downscaled_camera(camera: Camera, factor: int) -> Camera:
-    """The camera of an image shrunk by :func:`~spcodec.encoder.images.downscale_area`.
+    """The camera of an image shrunk by :func:`~spcodec.imaging.images.downscale_area`.
 
     Exact for any size: the output keeps floor(W/f) x floor(H/f) whole blocks and pixel coordinate
     u maps to u/f, so all four intrinsics are divided by ``factor``. (``Camera.scaled`` rounds the

@@ -123,7 +123,7 @@ def downscale_area(image: np.ndarray, factor: int) -> np.ndarray:
     Rows/columns that do not fill a whole block (at the right and bottom edges) are dropped, so
     output pixel (r, c) is exactly the mean of input pixels [r*f, (r+1)*f) x [c*f, (c+1)*f) and a
     camera maps to the new image by dividing fx, fy, cx, cy by ``factor`` (see
-    :func:`spcodec.encoder.datasets.downscaled_camera`).
+    :func:`spcodec.imaging.datasets.downscaled_camera`).
     """
     if factor < 1 or int(factor) != factor:
         raise ValueError(f"downscale factor must be a positive integer, got {factor!r}")

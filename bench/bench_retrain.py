@@ -27,15 +27,15 @@ from spcodec.cloud import GaussianCloud
 from spcodec.decoder.layers import fill_patch_attributes
 from spcodec.encoder.patch import PatchEncoder, quantized_cloud
 from spcodec.encoder.presets import preset_config
+from spcodec.encoder.prune import kept_count, select
 from spcodec.encoder.retrain import RetrainConfig, RetrainStage, RunControl, spread
-from spcodec.encoder.training.loop import FitLoop
-from spcodec.encoder.training.loss import psnr_of
-from spcodec.encoder.training.optim import FreeGaussians
-from spcodec.encoder.training.prune import kept_count, select
-from spcodec.encoder.training.targets import distillation_targets
 from spcodec.imaging.evaluate import EvalConfig, evaluate_against_reference
 from spcodec.imaging.importance import blend_weights
 from spcodec.imaging.render import GaussianParams, RenderSettings, render
+from spcodec.imaging.training.loop import FitLoop
+from spcodec.imaging.training.loss import psnr_of
+from spcodec.imaging.training.optim import FreeGaussians
+from spcodec.imaging.training.targets import distillation_targets
 from spcodec.imaging.views import sample_views
 
 CHECKPOINTS = (250, 500, 1000, 1500, 2000, 3000, 4000)

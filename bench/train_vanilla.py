@@ -12,7 +12,7 @@ INRIA code runs it on NeRF-synthetic scenes, with every step count scaled to a s
   the position rate decaying over the run and scaled by the camera extent (``FreeGaussians``).
 * **SH degree** raised by one every ``sh_every`` steps up to ``--sh-degree`` (INRIA: 1000 of
   30,000, scaled like the rest).
-* **Adaptive density control** (``encoder/training/densify.py``): the INRIA schedule of a
+* **Adaptive density control** (``imaging/training/densify.py``): the INRIA schedule of a
   30,000-step run (densify from 500 to 15,000 every 100, opacity reset every 3,000 and at the
   start for a white background) times ``iterations / 30000``, as gsplat's ``steps_scaler`` does.
 
@@ -47,15 +47,15 @@ import torch
 
 from spcodec.cloud import SH_REST_COUNTS, GaussianCloud
 from spcodec.encoder.progress import StageReporter
-from spcodec.encoder.training.densify import REFERENCE_ITERATIONS, Densifier, DensifyConfig
-from spcodec.encoder.training.loop import FitLoop, StepReport
-from spcodec.encoder.training.optim import FreeGaussians, LearningRates
-from spcodec.encoder.training.targets import Targets, dataset_targets
 from spcodec.fileio import atomic_write
 from spcodec.imaging.datasets import load_dataset
 from spcodec.imaging.evaluate import EvalConfig, evaluate_against_dataset
 from spcodec.imaging.render import GaussianParams, RenderSettings
 from spcodec.imaging.render.sh import SH_C0
+from spcodec.imaging.training.densify import REFERENCE_ITERATIONS, Densifier, DensifyConfig
+from spcodec.imaging.training.loop import FitLoop, StepReport
+from spcodec.imaging.training.optim import FreeGaussians, LearningRates
+from spcodec.imaging.training.targets import Targets, dataset_targets
 from spcodec.ply import write_ply
 
 SH_EVERY = 1000

@@ -73,7 +73,7 @@ class PatchConfig:
     #: so Gaussians the sampled views miss (seen from elsewhere) still get entries near them.
     kmeans_weight_floor: float = 0.1
     #: What ranks Gaussians into layers and weights k-means: "blend", the blending weight each
-    #: accumulates over ``importance_views`` sampled training views (encoder/importance.py), or
+    #: accumulates over ``importance_views`` sampled training views (imaging/importance.py), or
     #: "footprint", opacity times footprint area (no rendering, but blind to occlusion).
     importance: str = "blend"
     #: Views (training split, never eval's) and their (width, height) for "blend".

@@ -21,13 +21,13 @@ import torch
 from spcodec.cloud import GaussianCloud
 from spcodec.imaging.importance import blend_weights
 from spcodec.imaging.render import RenderSettings, resolve_device
+from spcodec.imaging.training.checkpoint import Checkpointer, fingerprint
+from spcodec.imaging.training.targets import Targets, check_targets, dataset_targets, distillation_targets
 
 from .patch import PatchEncoder, PatchEncoding, Quantized
+from .prune import kept_count, prune_by_importance, select
 from .ratecontrol import TRAIN_MARGIN, RatePlan, fit_count, plan_count, within
 from .retrain import RetrainConfig, RetrainStage, RunControl, spread
-from .training.checkpoint import Checkpointer, fingerprint
-from .training.prune import kept_count, prune_by_importance, select
-from .training.targets import Targets, check_targets, dataset_targets, distillation_targets
 
 if TYPE_CHECKING:
     from .pipeline import EncoderConfig, ProgressFactory, SceneWriter, SketchOutcome

@@ -4,15 +4,15 @@ with a quantization-aware finish (the paper's section "Patch Gaussian Pruning an
 Order of work, as :class:`RetrainStage` runs it:
 
 1. **Targets**: dataset training images (``--dataset``) or renders of the original at sampled
-   training views (distillation); see :mod:`.training.targets`.
+   training views (distillation); see :mod:`spcodec.imaging.training.targets`.
 2. **Prune** the patch Gaussians to ``round(n / patch_downsample)``: by blend weight over the
-   training views (default) or uniformly at random (the paper's); see :mod:`.training.prune`.
+   training views (default) or uniformly at random (the paper's); see :mod:`.prune`.
 3. **Retrain** the survivors (positions, scales, rotations, opacities, SH at the scene's degree)
    with Adam at the 3DGS rates, loss 0.8 L1 + 0.2 D-SSIM, the sketch as the file stores it
    rendered but never changed.
 4. **Quantize** with the patch encoder's codebooks, then the **finish**: fine-tune the codebook
    entries (and positions at their stored precision) through the renderer with indices fixed,
-   re-assigning indices once midway; see :mod:`.training.quantaware`.
+   re-assigning indices once midway; see :mod:`.quantaware`.
 5. **Order** the patch by blend weight in the whole scene (sketch included, so what the sketch
    hides ranks low) for the layers.
 
@@ -35,14 +35,14 @@ from spcodec.cloud import GaussianCloud
 from spcodec.errors import Interrupted, UsageError
 from spcodec.imaging.importance import blend_weights
 from spcodec.imaging.render import GaussianParams, RenderSettings
+from spcodec.imaging.training.checkpoint import Checkpointer
+from spcodec.imaging.training.loop import FitLoop, StepReport
+from spcodec.imaging.training.optim import FreeGaussians, LearningRates
+from spcodec.imaging.training.targets import Targets
 
 from .patch import PatchEncoder, Quantized
-from .training.checkpoint import Checkpointer
-from .training.loop import FitLoop, StepReport
-from .training.optim import FreeGaussians, LearningRates
-from .training.prune import PruneMethod, select
-from .training.quantaware import CodebookGaussians, with_positions
-from .training.targets import Targets
+from .prune import PruneMethod, select
+from .quantaware import CodebookGaussians, with_positions
 
 
 @dataclass

@@ -403,7 +403,7 @@ def run_control(args: argparse.Namespace):
     import shlex
 
     from .encoder.retrain import RunControl
-    from .encoder.training.checkpoint import checkpoint_path
+    from .imaging.training.checkpoint import checkpoint_path
 
     if args.threads is not None:
         import torch

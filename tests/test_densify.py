@@ -1,4 +1,4 @@
-"""Adaptive density control (encoder/training/densify.py) and vanilla training
+"""Adaptive density control (imaging/training/densify.py) and vanilla training
 (bench/train_vanilla.py): the statistics it reads from the renderer, the clone / split / prune
 rules, optimizer state kept aligned through every change, and short runs that grow and improve."""
 
@@ -18,19 +18,19 @@ from hypothesis import strategies as st
 
 import spcodec
 from spcodec.cloud import GaussianCloud
-from spcodec.encoder.training.densify import (
+from spcodec.imaging.cameras import Camera
+from spcodec.imaging.evaluate import EvalConfig, evaluate_against_dataset
+from spcodec.imaging.render import RenderSettings, render
+from spcodec.imaging.training.densify import (
     Densifier,
     DensifyConfig,
     append_gaussians,
     keep_gaussians,
     reset_opacities,
 )
-from spcodec.encoder.training.loop import FitLoop
-from spcodec.encoder.training.optim import FreeGaussians, LearningRates
-from spcodec.encoder.training.targets import distillation_targets
-from spcodec.imaging.cameras import Camera
-from spcodec.imaging.evaluate import EvalConfig, evaluate_against_dataset
-from spcodec.imaging.render import RenderSettings, render
+from spcodec.imaging.training.loop import FitLoop
+from spcodec.imaging.training.optim import FreeGaussians, LearningRates
+from spcodec.imaging.training.targets import distillation_targets
 
 from conftest import REPO, write_transforms_dataset
 

@@ -1,4 +1,4 @@
-"""Blend weights (encoder/importance.py) against a brute-force per-pixel accumulation."""
+"""Blend weights (imaging/importance.py) against a brute-force per-pixel accumulation."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Tests of the differentiable 3DGS renderer (encoder/render): closed forms, gradients, blending
+"""Tests of the differentiable 3DGS renderer (imaging/render): closed forms, gradients, blending
 rules, tiling invariance, SH, the public API and (when CUDA + gsplat exist) agreement with gsplat.
 """
 

@@ -107,7 +107,7 @@ def test_the_sketch_layer_of_a_retrained_file_is_capped_before_training(scene):
 def test_training_never_changes_the_frozen_tensors(scene):
     from spcodec.encoder.patch import PatchEncoder
     from spcodec.encoder.retrain import RetrainStage
-    from spcodec.encoder.training.targets import distillation_targets
+    from spcodec.imaging.training.targets import distillation_targets
 
     sketch = scene.subset(np.arange(0, 300))
     patch = scene.subset(np.arange(300, len(scene)))

@@ -1,5 +1,5 @@
-"""The parts of retraining (encoder/training, encoder/ratecontrol): rates, views, loss, pruning,
-the quantization-aware model, checkpoints and rate control's size search."""
+"""The parts of retraining (imaging/training, encoder/prune, encoder/ratecontrol): rates, views,
+loss, pruning, the quantization-aware model, checkpoints and rate control's size search."""
 
 from __future__ import annotations
 
@@ -12,19 +12,19 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from spcodec.encoder.patch import PatchConfig, PatchEncoder, quantized_cloud
+from spcodec.encoder.prune import kept_count, prune_by_importance, prune_uniform, select
+from spcodec.encoder.quantaware import CodebookGaussians
 from spcodec.encoder.ratecontrol import TOLERANCE, fit_count, parse_size, plan_count
-from spcodec.encoder.training.checkpoint import Checkpointer, checkpoint_path, fingerprint
-from spcodec.encoder.training.loop import view_order
-from spcodec.encoder.training.loss import photometric_loss
-from spcodec.encoder.training.optim import (
+from spcodec.errors import UsageError
+from spcodec.imaging.training.checkpoint import Checkpointer, checkpoint_path, fingerprint
+from spcodec.imaging.training.loop import view_order
+from spcodec.imaging.training.loss import photometric_loss
+from spcodec.imaging.training.optim import (
     FreeGaussians,
     LearningRates,
     camera_extent,
     position_rate,
 )
-from spcodec.encoder.training.prune import kept_count, prune_by_importance, prune_uniform, select
-from spcodec.encoder.training.quantaware import CodebookGaussians
-from spcodec.errors import UsageError
 from spcodec.synthetic import make_scene
 
 pytestmark = pytest.mark.usefixtures("single_torch_thread")

@@ -8,8 +8,8 @@ import numpy as np
 import torch
 
 from spcodec.cloud import GaussianCloud
-from spcodec.imaging.cameras import Camera
 
+from ..cameras import Camera
 from .gsplat_backend import gsplat_problem, render_gsplat
 from .params import GaussianParams
 from .settings import RenderResult, RenderSettings

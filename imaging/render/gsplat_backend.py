@@ -19,8 +19,7 @@ from types import ModuleType
 
 import torch
 
-from spcodec.imaging.cameras import Camera
-
+from ..cameras import Camera
 from .params import GaussianParams
 from .settings import BLUR_VARIANCE, RenderResult, RenderSettings, retain_means2d_grad
 

@@ -28,8 +28,7 @@ from dataclasses import dataclass
 
 import torch
 
-from spcodec.imaging.cameras import Camera
-
+from ..cameras import Camera
 from .params import GaussianParams
 from .settings import ALPHA_THRESHOLD, BLUR_VARIANCE, RenderSettings
 from .sh import sh_to_rgb

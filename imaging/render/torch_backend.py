@@ -6,8 +6,7 @@ from typing import Literal
 
 import torch
 
-from spcodec.imaging.cameras import Camera
-
+from ..cameras import Camera
 from .binning import bin_gaussians
 from .composite import BlendConfig, blend, blend_autograd
 from .params import GaussianParams

@@ -35,9 +35,8 @@ from dataclasses import dataclass, replace
 
 import torch
 
-from spcodec.imaging.render import RenderResult
-from spcodec.imaging.render.projection import rotation_entries
-
+from ..render import RenderResult
+from ..render.projection import rotation_entries
 from .optim import FreeGaussians
 
 REFERENCE_ITERATIONS = 30_000
@@ -102,7 +101,7 @@ class DensifyEvent:
 class Densifier:
     """Accumulates the statistics of :class:`FreeGaussians` over steps and densifies, prunes and
     resets opacities on schedule. Call :meth:`after_step` after every optimizer step (it fits
-    :class:`~spcodec.encoder.training.loop.FitLoop`'s ``after_step`` hook via a lambda)."""
+    :class:`~spcodec.imaging.training.loop.FitLoop`'s ``after_step`` hook via a lambda)."""
 
     def __init__(self, config: DensifyConfig, extent: float, seed: int = 0) -> None:
         self.config, self.extent = config, float(extent)

@@ -23,9 +23,8 @@ import torch
 from spcodec.attributes import OPACITY_MIN, PatchAttribute
 from spcodec.cloud import GaussianCloud
 from spcodec.imaging.render import GaussianParams
+from spcodec.imaging.training.optim import LearningRates
 from spcodec.sections import Codebook
-
-from .optim import LearningRates
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ import math
 
 import torch
 
-from spcodec.imaging.metrics import ssim_torch
+from ..metrics import ssim_torch
 
 DSSIM_WEIGHT = 0.2
 """lambda of the 3DGS loss (INRIA and gsplat default)."""

@@ -20,7 +20,8 @@ import numpy as np
 import torch
 
 from spcodec.cloud import GaussianCloud
-from spcodec.imaging.render import GaussianParams
+
+from ..render import GaussianParams
 
 
 @dataclass(frozen=True)

@@ -21,9 +21,9 @@ import torch
 
 from spcodec.cloud import GaussianCloud
 from spcodec.errors import UsageError
-from spcodec.imaging.cameras import Camera
-from spcodec.imaging.render import GaussianParams, RenderSettings, render
 
+from ..cameras import Camera
+from ..render import GaussianParams, RenderSettings, render
 from .loss import psnr_of
 from .optim import camera_extent
 
@@ -94,7 +94,7 @@ def check_targets(model: GaussianCloud, targets: Targets, settings: RenderSettin
     when dataset images and model look unrelated before any training (the evaluation's
     :func:`~spcodec.imaging.evaluate.warn_if_mismatched`). Returns the mean PSNR of ``model``
     over the targets."""
-    from spcodec.imaging.evaluate import warn_if_mismatched
+    from ..evaluate import warn_if_mismatched
 
     params = GaussianParams.from_cloud(model, device)
     alphas, psnrs = [], []

@@ -20,8 +20,7 @@ from typing import Callable, Protocol
 import numpy as np
 import torch
 
-from spcodec.imaging.render import GaussianParams, RenderResult, RenderSettings, render
-
+from ..render import GaussianParams, RenderResult, RenderSettings, render
 from .loss import DSSIM_WEIGHT, photometric_loss, psnr_of
 from .targets import Targets, TargetView
 

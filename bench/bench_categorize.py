@@ -39,12 +39,8 @@ from dataclasses import replace
 import numpy as np
 
 from spcodec import GaussianCloud, read_ply
-from spcodec.encoder.categorize import (
-    CategorizeConfig,
-    MultiCriteriaDBSCAN,
-    direction_distance,
-    principal_axes,
-)
+from spcodec.encoder.categorize import MultiCriteriaDBSCAN, direction_distance, principal_axes
+from spcodec.encoder.config import CategorizeConfig
 from spcodec.encoder.neighbors import iter_radius_pairs
 from spcodec.synthetic import make_scene
 

@@ -27,7 +27,8 @@ from plyfile import PlyData
 
 import spcodec
 from spcodec.container import Codec
-from spcodec.encoder.patch import PatchConfig, PatchEncoder
+from spcodec.encoder.config import PatchConfig
+from spcodec.encoder.patch import PatchEncoder
 from spcodec.writer import EncodedScene, WriteOptions, build_bitstream
 
 DEFAULT_SCENE = Path(os.environ.get("SPCODEC_DATA", Path(__file__).resolve().parents[2] /

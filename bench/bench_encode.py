@@ -22,7 +22,8 @@ import dataclasses
 import os
 import time
 
-from spcodec.encoder.pipeline import EncoderConfig, encode
+from spcodec.encoder.config import EncoderConfig
+from spcodec.encoder.pipeline import encode
 from spcodec.ply import ply_dtype
 
 from scenes import REAL, data_dir, load_scene  # bench/ is on sys.path

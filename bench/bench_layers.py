@@ -22,7 +22,8 @@ import time
 from pathlib import Path
 
 import spcodec
-from spcodec.encoder.pipeline import EncoderConfig, encode
+from spcodec.encoder.config import EncoderConfig
+from spcodec.encoder.pipeline import encode
 from spcodec.imaging.evaluate import EvalConfig, evaluate_against_reference
 
 from bench_encode import previous_config  # bench/ is on sys.path

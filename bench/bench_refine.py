@@ -23,7 +23,8 @@ import numpy as np
 
 from spcodec.attributes import SketchAttribute
 from spcodec.cloud import GaussianCloud
-from spcodec.encoder.refine import RefineConfig, RefineResult, refine
+from spcodec.encoder.config import RefineConfig
+from spcodec.encoder.refine import RefineResult, refine
 from spcodec.ply import read_ply
 
 from scenes import data_dir  # bench/ is on sys.path

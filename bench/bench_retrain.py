@@ -25,10 +25,11 @@ import torch
 import spcodec
 from spcodec.cloud import GaussianCloud
 from spcodec.decoder.layers import fill_patch_attributes
+from spcodec.encoder.config import RetrainConfig
 from spcodec.encoder.patch import PatchEncoder, quantized_cloud
 from spcodec.encoder.presets import preset_config
 from spcodec.encoder.prune import kept_count, select
-from spcodec.encoder.retrain import RetrainConfig, RetrainStage, RunControl, spread
+from spcodec.encoder.retrain import RetrainStage, RunControl, spread
 from spcodec.imaging.evaluate import EvalConfig, evaluate_against_reference
 from spcodec.imaging.importance import blend_weights
 from spcodec.imaging.render import GaussianParams, RenderSettings, render

@@ -27,7 +27,7 @@ call on the forest edges then labels the clusters.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterable, Iterator, Literal
+from typing import Iterable, Iterator
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -37,6 +37,7 @@ from scipy.spatial import cKDTree
 from spcodec.attributes import canonical_rotation
 from spcodec.cloud import GaussianCloud
 
+from .config import CategorizeConfig, DirectionMetric
 from .neighbors import (
     RadiusPairs,
     iter_radius_pairs,
@@ -44,90 +45,6 @@ from .neighbors import (
     rowwise_dot,
     squared_distances,
 )
-
-DirectionMetric = Literal["axis", "signed"]
-
-
-@dataclass(frozen=True)
-class CategorizeConfig:
-    """Parameters of the multi-criteria DBSCAN. Defaults work for scenes in any unit.
-
-    The paper gives no numeric thresholds. The defaults sit where real captures cluster a good
-    share of their Gaussians into many mid-sized clusters without percolating into one giant
-    component, which the polynomial models downstream could not fit. On fourth_st (131k) they
-    cluster 32.6 % into 280 clusters, the largest 4.3 % of the scene; one step tighter on any
-    threshold (eps_s_factor 1.0, eps_d 0.025, eps_c 0.05, min_samples 10) drops the clustered
-    share to 10-15 %, one step looser (2.0, 0.1, 0.15, 3) grows the largest cluster to 10-31 %,
-    and all three eps loosened merge 81 % of the scene into a single cluster. Biker reacts the
-    same way, more mildly (54 % clustered, largest 2.9 %). Synthetic curves (make_scene, seeds
-    0-2) are recovered with precision >= 0.999 and recall >= 0.96 at every one of those settings,
-    so the synthetic scenes do not constrain the choice; the real ones do. Reproduce with
-    ``python bench/bench_categorize.py --sweep``.
-    """
-
-    eps_s: float | None = None
-    """Spatial radius in scene units. ``None`` (default) derives it from the scene as
-    ``eps_s_factor`` times the ``eps_s_quantile`` of the distance to the ``eps_s_knn``-th nearest
-    neighbour, because scenes come in arbitrary units (a 0.3-unit object, a 300-unit street) and
-    only their own point spacing says what "near" means."""
-    eps_s_factor: float = 1.5
-    """Multiplier of the reference k-NN distance (unitless). 1.5 gives a Gaussian of typical
-    density some 35 spatial candidates (measured on fourth_st and biker), a margin over
-    ``min_samples`` for the candidates that the direction and colour criteria remove."""
-    eps_s_knn: int = 10
-    """``k`` of the reference k-NN distance (count, the point itself not counted). Twice
-    ``min_samples``: a neighbourhood, not the nearest neighbour, whose distance is dominated by
-    duplicated and quantized positions."""
-    eps_s_quantile: float = 0.5
-    """Which quantile of the k-NN distances is the reference (in [0, 1]). The median ignores both
-    sparse background floaters and densely duplicated clumps."""
-    eps_s_sample: int = 200_000
-    """At most this many random query points estimate the k-NN quantile (count): the median's
-    rank is then right to about 0.1 %, at a cost that stays flat for huge scenes."""
-    eps_d: float = 0.05
-    """Direction threshold, unitless in [0, 1] on the paper's scale ``(1 - cos) / 2``: 0.05 admits
-    principal axes up to 25.8 degrees apart (|cos| >= 0.9), loose enough for curved edges."""
-    eps_c: float = 0.1
-    """Colour threshold, Euclidean RGB distance in [0, 1] units (about 15/255 per channel when
-    all three differ equally): separates distinct surfaces meeting at an edge."""
-    direction_metric: DirectionMetric = "axis"
-    """``"axis"`` (default): sign-free ``(1 - |cos|) / 2``; ``"signed"``: the paper's literal
-    ``(1 - cos) / 2``. See :func:`direction_distance` for the measurements behind the default."""
-    min_samples: int = 5
-    """Neighbours that make a core point (count, the point itself included as in scikit-learn,
-    whose default of 5 this is)."""
-    min_cluster_size: int = 20
-    """Clusters with fewer members (cores plus borders) become noise (count). A sketch cluster
-    pays for a Draco stream and polynomial models (a linear model of the 11 base outputs alone is
-    44 coefficients), which a handful of Gaussians cannot amortize; on fourth_st, 5 instead of 20
-    keeps 6x more clusters for only 9 percentage points more clustered Gaussians."""
-    chunk_size: int = 8192
-    """Query points per chunk of the neighbour search (count). Sets the working memory, about
-    100 bytes per candidate pair (some 30 MB at the default eps_s); results do not depend on it.
-    On fourth_st chunks of 2k-8k were also the fastest (cache locality)."""
-    random_state: int | None = 0
-    """Seed of the k-NN sample when the scene has more than ``eps_s_sample`` points."""
-
-    def __post_init__(self) -> None:
-        if self.eps_s is not None and not (np.isfinite(self.eps_s) and self.eps_s >= 0):
-            raise ValueError(f"eps_s must be finite and >= 0 or None, got {self.eps_s}")
-        _check_range("eps_d", self.eps_d, 0.0, 1.0)
-        _check_range("eps_s_quantile", self.eps_s_quantile, 0.0, 1.0)
-        if not (np.isfinite(self.eps_c) and self.eps_c >= 0):
-            raise ValueError(f"eps_c must be finite and >= 0, got {self.eps_c}")
-        if not (np.isfinite(self.eps_s_factor) and self.eps_s_factor > 0):
-            raise ValueError(f"eps_s_factor must be positive, got {self.eps_s_factor}")
-        if self.direction_metric not in ("axis", "signed"):
-            raise ValueError(f"direction_metric must be 'axis' or 'signed', "
-                             f"got {self.direction_metric!r}")
-        for name in ("eps_s_knn", "eps_s_sample", "min_samples", "min_cluster_size", "chunk_size"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-
-
-def _check_range(name: str, value: float, lo: float, hi: float) -> None:
-    if not lo <= value <= hi:
-        raise ValueError(f"{name} must be in [{lo}, {hi}], got {value}")
 
 
 # ------------------------------------------------------------------------------- per-Gaussian

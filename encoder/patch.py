@@ -11,7 +11,7 @@ shows the Gaussians that matter most.
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -22,63 +22,11 @@ from spcodec.decoder.layers import fill_patch_attributes
 from spcodec.sections import Codebook, PatchPositions
 from spcodec.writer import PatchLayer
 
+from .config import PatchConfig
 from .draco import encode_ordered, grid_for
 from .kmeans import exhaustive_codebook, nearest, sampled_codebook
 from .morton import morton_codes
 from .refine import default_jobs
-
-
-@dataclass
-class PatchConfig:
-    """Parameters of the patch encoder; defaults follow the paper unless a comment says why not."""
-
-    #: Entries per codebook (the paper and Reduced-3DGS: 256, i.e. one-byte indices).
-    codebook_size: int = 256
-    #: Entry dimension per attribute: the attribute's components are split into groups of this
-    #: size, one index per group (the format allows any divisor of the width, from scalar to full
-    #: vector quantization). The defaults (preset "balanced") quantize scale per axis and rotation
-    #: per pair of components: without retraining, whole-vector codebooks of 256 entries for these
-    #: geometric attributes cost 5-12 dB on scenes of many small Gaussians (Mip-Splatting donut:
-    #: 28.5 dB with vectors, 40.7 dB per axis/pair). Colour DC is a vector; each SH band is one
-    #: vector (3 indices for SH degree 3), which on fourth_st saves 27 % for 7 dB less than one
-    #: index per RGB coefficient (15 indices). See encoder/presets.py for the measured table.
-    entry_dims: dict[str, int] = field(default_factory=lambda: {
-        "SCALE": 1, "ROTATION": 2, "OPACITY": 1, "COLOR_DC": 3,
-        "SH_BAND_1": 9, "SH_BAND_2": 15, "SH_BAND_3": 21,
-    })
-    #: How positions are stored: "draco" (order-preserving Draco, the smallest), "quant16" (16-bit
-    #: fixed point, delta-coded), "float16" (the paper's) or "float32" (lossless).
-    position_mode: str = "draco"
-    #: For draco and quant16: bits of precision over the layer's bounding box (quant16: <= 16).
-    position_bits: int = 16
-    #: Number of patch layers (>= 1).
-    layers: int = 3
-    #: Share of the patch Gaussians in each layer, most important first (renormalized). The first
-    #: layer (7 %, with the codebooks) completes within 10 % of the file, a streaming viewer's
-    #: first picture when there is no sketch; the first two (23.5 %) end before 30 % of the file
-    #: with a sketch layer of 6 % (guitar). A fourth layer costs about 1 % in size (each layer
-    #: codes its positions on its own): docs/RESULTS.md, section 7.
-    layer_fractions: tuple[float, ...] = (0.07, 0.165, 0.765)
-    #: Codebook trainer (encoder/kmeans.py): "sampled" (exact in one dimension, weight-proportional
-    #: samples for vectors) or "exhaustive" (the previous scikit-learn k-means++ on uniform
-    #: samples: 5-20x slower for codebooks as good; kept for comparisons).
-    kmeans: str = "sampled"
-    #: k-means samples per vector codebook (sampled: draws; exhaustive: at most this many groups).
-    kmeans_samples: int = 65_536
-    #: k-means (Lloyd) iterations at most.
-    kmeans_iterations: int = 40
-    #: Weight k-means samples by importance, so codebook entries go where they are visible.
-    weighted_kmeans: bool = True
-    #: With weighted k-means, every Gaussian weighs at least this share of the mean importance,
-    #: so Gaussians the sampled views miss (seen from elsewhere) still get entries near them.
-    kmeans_weight_floor: float = 0.1
-    #: What ranks Gaussians into layers and weights k-means: "blend", the blending weight each
-    #: accumulates over ``importance_views`` sampled training views (imaging/importance.py), or
-    #: "footprint", opacity times footprint area (no rendering, but blind to occlusion).
-    importance: str = "blend"
-    #: Views (training split, never eval's) and their (width, height) for "blend".
-    importance_views: int = 6
-    importance_resolution: tuple[int, int] = (256, 192)
 
 
 def coded_attributes(cloud: GaussianCloud) -> dict[PatchAttribute, np.ndarray]:

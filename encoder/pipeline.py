@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import Callable
 
 import numpy as np
 
@@ -21,62 +21,17 @@ from spcodec.cloud import GaussianCloud
 from spcodec.container import Codec
 from spcodec.decoder import decode_layers, inspect
 from spcodec.errors import FormatError, UsageError
-from spcodec.writer import EncodedScene, WriteOptions, build_bitstream
+from spcodec.imaging.evaluate import EvalConfig, evaluate_against_dataset, evaluate_against_reference
+from spcodec.writer import EncodedScene, WriteOptions
 
-from .categorize import CategorizeConfig, categorize
-from .patch import PatchConfig, PatchEncoder, PatchEncoding
-from .refine import RefineConfig, RefineResult, refine
-from .sketch import SketchConfig, SketchEncoder
-
-if TYPE_CHECKING:
-    from .retrain import RetrainConfig, RunControl
-
-ProgressFactory = Callable[[str, int | None], "Stage"]
-
-
-@dataclass
-class EncoderConfig:
-    """Every parameter of an encode. Stage configs are documented field by field in their modules.
-
-    ``seed`` overrides the stages' own random states, so one number makes the encode reproducible.
-    """
-
-    categorize: CategorizeConfig = field(default_factory=CategorizeConfig)
-    refine: RefineConfig = field(default_factory=RefineConfig)
-    sketch: SketchConfig = field(default_factory=SketchConfig)
-    patch: PatchConfig = field(default_factory=PatchConfig)
-    #: Seed of every random choice (k-NN sampling, K-means, codebook training).
-    seed: int = 0
-    #: Worker processes for refinement (None: the available cores).
-    n_jobs: int | None = None
-    #: False encodes every Gaussian as patch (the baseline without structure).
-    use_sketch: bool = True
-    #: Section codec: "zlib" (the paper's; every decoder has it) or "zstd" (optional, faster).
-    codec: str = "zlib"
-    #: Wrap the file in gzip (the paper's final step; a few percent smaller).
-    gzip: bool = False
-    #: Prune and retrain the patch (None: the no-retrain encoder). See encoder/retrain.py.
-    retrain: "RetrainConfig | None" = None
-    #: Rate control: aim the file at this many bytes (within 5 %) by choosing how many patch
-    #: Gaussians survive pruning (None: the size follows from the settings).
-    target_size: int | None = None
-    #: The sketch layer, a streaming viewer's first picture, ends within this share of the file:
-    #: when it would not, the sketch clusters of least importance per Gaussian go to the patch
-    #: (None: no limit). With retraining the share is judged before training, on the file the
-    #: prune factor makes (not with ``target_size``, whose pruning follows the sketch's size).
-    max_sketch_share: float | None = 0.1
-
-    def seeded(self) -> "EncoderConfig":
-        """A copy whose stage configs carry ``seed``."""
-        return dataclasses.replace(
-            self,
-            categorize=dataclasses.replace(self.categorize, random_state=self.seed),
-            refine=dataclasses.replace(self.refine, random_state=self.seed),
-        )
-
-    def to_json(self) -> dict:
-        """Plain JSON-ready settings (stored in the file's metadata)."""
-        return dataclasses.asdict(self)
+from .categorize import categorize
+from .config import EncoderConfig, PatchConfig, RetrainConfig
+from .patch import PatchEncoder, PatchEncoding
+from .prune_retrain import encode_pruned_patch, factor_trial, prepare_targets, scene_weights
+from .refine import RefineResult, refine
+from .retrain import RunControl
+from .sketch import SketchEncoder
+from .stages import ProgressFactory, SceneWriter, SketchOutcome, silent
 
 
 @dataclass
@@ -90,21 +45,6 @@ class EncodeResult:
     stats: dict
 
 
-class Stage:
-    """Progress of one stage; the default prints nothing. ``update`` may carry figures to show
-    (training steps pass ``loss`` and ``psnr``)."""
-
-    def update(self, count: int = 1, **figures: float) -> None:  # pragma: no cover - trivial
-        pass
-
-    def done(self, summary: str = "") -> None:  # pragma: no cover - trivial
-        pass
-
-
-def _silent(name: str, total: int | None) -> Stage:
-    return Stage()
-
-
 def validate_input(cloud: GaussianCloud) -> None:
     """One-line errors for inputs the encoder cannot take."""
     if len(cloud) == 0:
@@ -115,8 +55,8 @@ def validate_input(cloud: GaussianCloud) -> None:
 
 
 def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
-           progress: ProgressFactory = _silent, source_name: str | None = None,
-           dataset: str | Path | None = None, control: "RunControl | None" = None) -> EncodeResult:
+           progress: ProgressFactory = silent, source_name: str | None = None,
+           dataset: str | Path | None = None, control: RunControl | None = None) -> EncodeResult:
     """Encode ``cloud`` into a bitstream.
 
     With ``config.retrain`` set, the patch is pruned and retrained against ``dataset``'s training
@@ -135,9 +75,6 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
     times: dict[str, float] = {}
     prepared = None
     if config.retrain is not None or config.target_size is not None:
-        from .prune_retrain import prepare_targets
-        from .retrain import RunControl
-
         control = control or RunControl()
         control.check_checkpoint()
         prepared = prepare_targets(cloud, config, dataset, control, progress, times)
@@ -170,8 +107,6 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
         patch, data = last["patch"], last["data"]
         rows = np.arange(len(sketch.patch_idx))
     else:
-        from .prune_retrain import encode_pruned_patch, factor_trial, scene_weights
-
         weights = scene_weights(cloud, config, prepared)
         # the share is judged on the file the prune factor makes before training, whose layout
         # the retrained file keeps (same count, same codebook settings)
@@ -207,13 +142,11 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
     return EncodeResult(data, writer.scene(patch), source, stats)
 
 
-def judge(data: bytes, original: GaussianCloud, retrain: "RetrainConfig",
-          dataset: str | Path | None, control: "RunControl | None") -> dict:
+def judge(data: bytes, original: GaussianCloud, retrain: RetrainConfig,
+          dataset: str | Path | None, control: RunControl | None) -> dict:
     """Quality of the written file as ``spcodec eval`` measures it with its defaults: against the
     dataset's test images, or against renders of the original at the held-out sampled views
     (with the encode's ``up`` and ``antialiased``), so the two commands report the same PSNR."""
-    from spcodec.imaging.evaluate import EvalConfig, evaluate_against_dataset, evaluate_against_reference
-
     device = control.device if control is not None else "auto"
     decoded = decode_layers(data).cloud
     if dataset is not None:
@@ -228,18 +161,6 @@ def judge(data: bytes, original: GaussianCloud, retrain: "RetrainConfig",
     return {"psnr": doc["psnr"], "ssim": doc["ssim"], "lpips": doc["lpips"],
             "views": doc["views"], "width": doc["width"], "height": doc["height"],
             "against": against}
-
-
-@dataclass
-class SketchOutcome:
-    """The sketch stage's result: encoded clusters and where every input Gaussian went."""
-
-    clusters: list
-    sources: list[np.ndarray]
-    """Per encoded cluster, the indices of its input Gaussians in stored order."""
-    patch_idx: np.ndarray
-    """Sorted indices of the input Gaussians left to the patch."""
-    stats: dict
 
 
 def refine_sketch(cloud: GaussianCloud, config: EncoderConfig, progress: ProgressFactory,
@@ -287,7 +208,7 @@ def encode_sketch(cloud: GaussianCloud, refined: RefineResult | None, found: int
     return SketchOutcome(sketch.clusters, sketch.sources, patch_idx, stats)
 
 
-def _encode_patch(cloud: GaussianCloud, sketch: SketchOutcome, writer: "SceneWriter",
+def _encode_patch(cloud: GaussianCloud, sketch: SketchOutcome, writer: SceneWriter,
                   importance: np.ndarray, patch_encoder: PatchEncoder,
                   progress: ProgressFactory, times: dict[str, float]
                   ) -> tuple[PatchEncoding, bytes]:
@@ -301,7 +222,7 @@ def _encode_patch(cloud: GaussianCloud, sketch: SketchOutcome, writer: "SceneWri
     return patch, _write(writer, patch, progress, times)
 
 
-def _write(writer: "SceneWriter", patch: PatchEncoding, progress: ProgressFactory,
+def _write(writer: SceneWriter, patch: PatchEncoding, progress: ProgressFactory,
            times: dict[str, float]) -> bytes:
     t = time.perf_counter()
     stage = progress("write", None)
@@ -309,30 +230,6 @@ def _write(writer: "SceneWriter", patch: PatchEncoding, progress: ProgressFactor
     stage.done(f"{len(data)} bytes")
     times["write"] = times.get("write", 0.0) + time.perf_counter() - t
     return data
-
-
-@dataclass
-class SceneWriter:
-    """Writes the file of one scene for any patch encoding (the sketch and metadata are fixed),
-    so rate control can size trial files exactly as the final one."""
-
-    sh_degree: int
-    sketch: list
-    metadata: dict
-    options: WriteOptions
-
-    def scene(self, patch: PatchEncoding | None) -> EncodedScene:
-        if patch is None:
-            return EncodedScene(self.sh_degree, self.sketch, [], [], self.metadata)
-        layers = patch.layers if sum(map(len, patch.layers)) else []
-        return EncodedScene(self.sh_degree, self.sketch, patch.codebooks, layers, self.metadata)
-
-    def write(self, patch: PatchEncoding | None) -> bytes:
-        return build_bitstream(self.scene(patch), self.options)
-
-    def decoded_sketch(self) -> GaussianCloud:
-        """The sketch exactly as a decoder will see it (layer 0 of a sketch-only file)."""
-        return decode_layers(self.write(None), max_layer=0).cloud
 
 
 def _cap_sketch(cloud: GaussianCloud, refined: RefineResult | None, found: int,

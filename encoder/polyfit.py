@@ -43,7 +43,6 @@ Error measures (see :class:`AttributeScales`):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.linalg
@@ -53,8 +52,7 @@ from spcodec.cloud import SH_REST_COUNTS, GaussianCloud, sh_degree_for_rest_coun
 from spcodec.decoder.layers import evaluate_models, fill_cluster
 from spcodec.polynomial import MAX_DEGREE, features, monomial_count, normalize_positions
 
-if TYPE_CHECKING:  # pragma: no cover - typing only; refine imports this module
-    from .refine import RefineConfig
+from .config import RefineConfig
 
 COMBINED_ATTRIBUTES = (SketchAttribute.SCALE, SketchAttribute.ROTATION, SketchAttribute.OPACITY,
                        SketchAttribute.COLOR_DC)
@@ -227,7 +225,7 @@ class _Moments:
     n: int
 
 
-def max_admissible_degree(n: int, config: "RefineConfig", cap: int | None = None) -> int:
+def max_admissible_degree(n: int, config: RefineConfig, cap: int | None = None) -> int:
     """The highest degree with at least ``min_points_per_coefficient`` points per coefficient.
 
     Fewer points than that would make the model cost more bytes per Gaussian than a codebook index
@@ -315,7 +313,7 @@ class DegreeTable:
 
 
 def degree_table(x: np.ndarray, attributes: dict[SketchAttribute, np.ndarray],
-                 config: "RefineConfig", scales: AttributeScales) -> DegreeTable:
+                 config: RefineConfig, scales: AttributeScales) -> DegreeTable:
     """Fit every admissible degree, round to float16 and predict each attribute's error."""
     n = x.shape[0]
     slices = _column_slices(attributes)
@@ -338,7 +336,7 @@ def degree_table(x: np.ndarray, attributes: dict[SketchAttribute, np.ndarray],
     return DegreeTable(coefficients, nmse, n)
 
 
-def _weight(attr: SketchAttribute, config: "RefineConfig") -> float:
+def _weight(attr: SketchAttribute, config: RefineConfig) -> float:
     if attr is SketchAttribute.SH_REST:
         return config.sh_rest_weight
     return config.weights[COMBINED_ATTRIBUTES.index(attr)]
@@ -350,7 +348,7 @@ def _degree_bytes(outputs: int, degree: np.ndarray) -> np.ndarray:
 
 
 def _choose(table: DegreeTable, attributes: dict[SketchAttribute, np.ndarray],
-            config: "RefineConfig", lam: float) -> dict[SketchAttribute, int]:
+            config: RefineConfig, lam: float) -> dict[SketchAttribute, int]:
     """Per attribute, the degree minimizing ``w * nmse + lam * bytes / n`` (ties: lower degree)."""
     chosen = {}
     for attr, errors in table.nmse.items():
@@ -365,13 +363,13 @@ def _choose(table: DegreeTable, attributes: dict[SketchAttribute, np.ndarray],
 
 
 def _predicted_combined(table: DegreeTable, degrees: dict[SketchAttribute, int],
-                        config: "RefineConfig") -> float:
+                        config: RefineConfig) -> float:
     return float(sum(config.weights[i] * table.nmse[a][degrees[a]]
                      for i, a in enumerate(COMBINED_ATTRIBUTES)))
 
 
 def select_degrees(table: DegreeTable, attributes: dict[SketchAttribute, np.ndarray],
-                   config: "RefineConfig") -> tuple[dict[SketchAttribute, int], float]:
+                   config: RefineConfig) -> tuple[dict[SketchAttribute, int], float]:
     """Lambda-optimal degrees, lowering lambda only as far as needed to meet tau_max.
 
     Returns the degrees and the lambda multiplier used. When even lambda = 0 misses tau_max the
@@ -456,7 +454,7 @@ def models_for(table: DegreeTable, attributes: dict[SketchAttribute, np.ndarray]
 
 # ------------------------------------------------------------------------------------- entry
 def fit_cluster_detailed(positions: np.ndarray, attributes: dict[SketchAttribute, np.ndarray],
-                         config: "RefineConfig", scales: AttributeScales | None = None
+                         config: RefineConfig, scales: AttributeScales | None = None
                          ) -> tuple[ClusterFit, dict[SketchAttribute, np.ndarray]]:
     """:func:`fit_cluster` that also returns the per-Gaussian residuals (decoded - target), which
     refinement needs for splitting and outlier removal."""
@@ -476,7 +474,7 @@ def fit_cluster_detailed(positions: np.ndarray, attributes: dict[SketchAttribute
 
 
 def fit_cluster(positions: np.ndarray, attributes: dict[SketchAttribute, np.ndarray],
-                config: "RefineConfig", scales: AttributeScales | None = None) -> ClusterFit:
+                config: RefineConfig, scales: AttributeScales | None = None) -> ClusterFit:
     """Fit float16 polynomial models of position for one cluster and measure them as decoded.
 
     ``positions`` (n, 3) are the positions the decoder will see (Draco-decoded in the final
@@ -488,7 +486,7 @@ def fit_cluster(positions: np.ndarray, attributes: dict[SketchAttribute, np.ndar
 
 
 def remeasure(fit: ClusterFit, positions: np.ndarray,
-              attributes: dict[SketchAttribute, np.ndarray], config: "RefineConfig",
+              attributes: dict[SketchAttribute, np.ndarray], config: RefineConfig,
               scales: AttributeScales | None = None) -> ClusterFit:
     """The same frame and models, with errors measured (decoder code) at other positions.
 
@@ -504,7 +502,7 @@ def remeasure(fit: ClusterFit, positions: np.ndarray,
 
 
 def refit_or_keep(fit: ClusterFit, positions: np.ndarray,
-                  attributes: dict[SketchAttribute, np.ndarray], config: "RefineConfig",
+                  attributes: dict[SketchAttribute, np.ndarray], config: RefineConfig,
                   scales: AttributeScales | None = None) -> ClusterFit:
     """Models for a cluster whose positions or membership changed since ``fit`` was made.
 
@@ -525,7 +523,7 @@ def refit_or_keep(fit: ClusterFit, positions: np.ndarray,
 
 
 def _checked(positions: np.ndarray, attributes: dict[SketchAttribute, np.ndarray],
-             config: "RefineConfig") -> dict[SketchAttribute, np.ndarray]:
+             config: RefineConfig) -> dict[SketchAttribute, np.ndarray]:
     """Validate shapes; drop SH_REST when the configuration does not model it."""
     n = positions.shape[0]
     if positions.ndim != 2 or positions.shape[1] != 3 or n == 0:

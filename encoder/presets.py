@@ -20,8 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from .pipeline import EncoderConfig
-from .retrain import RetrainConfig
+from .config import EncoderConfig, RetrainConfig
 
 _SH_BANDS = {"SH_BAND_1": 9, "SH_BAND_2": 15, "SH_BAND_3": 21}
 _SH_TRIPLETS = {"SH_BAND_1": 3, "SH_BAND_2": 3, "SH_BAND_3": 3}

@@ -10,7 +10,7 @@ from __future__ import annotations
 import sys
 import time
 
-from .pipeline import Stage
+from .stages import Stage
 
 _LOG_STEPS = 20
 """Lines printed over a counted stage when stderr is not a terminal."""

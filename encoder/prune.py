@@ -7,11 +7,9 @@ indices so the survivors keep their input order.
 
 from __future__ import annotations
 
-from typing import Literal
-
 import numpy as np
 
-PruneMethod = Literal["importance", "uniform"]
+from .config import PruneMethod
 
 
 def kept_count(n: int, factor: float) -> int:

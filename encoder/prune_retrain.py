@@ -13,7 +13,6 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -24,13 +23,12 @@ from spcodec.imaging.render import RenderSettings, resolve_device
 from spcodec.imaging.training.checkpoint import Checkpointer, fingerprint
 from spcodec.imaging.training.targets import Targets, check_targets, dataset_targets, distillation_targets
 
+from .config import EncoderConfig, RetrainConfig
 from .patch import PatchEncoder, PatchEncoding, Quantized
 from .prune import kept_count, prune_by_importance, select
 from .ratecontrol import TRAIN_MARGIN, RatePlan, fit_count, plan_count, within
-from .retrain import RetrainConfig, RetrainStage, RunControl, spread
-
-if TYPE_CHECKING:
-    from .pipeline import EncoderConfig, ProgressFactory, SceneWriter, SketchOutcome
+from .retrain import RetrainStage, RunControl, spread
+from .stages import ProgressFactory, SceneWriter, SketchOutcome
 
 DISTILLATION_BACKGROUND = (0.0, 0.0, 0.0)
 """Background of distillation renders (the one ``spcodec eval --reference`` uses)."""
@@ -61,8 +59,8 @@ class PreparedTargets:
     """PSNR of the input model against its targets (the mismatch check's figure)."""
 
 
-def prepare_targets(cloud: GaussianCloud, config: "EncoderConfig", dataset: str | Path | None,
-                    control: RunControl, progress: "ProgressFactory",
+def prepare_targets(cloud: GaussianCloud, config: EncoderConfig, dataset: str | Path | None,
+                    control: RunControl, progress: ProgressFactory,
                     times: dict[str, float]) -> PreparedTargets:
     """Load or render the targets and check that they belong to ``cloud``."""
     view_config = config.retrain or _NO_RETRAIN
@@ -77,7 +75,7 @@ def prepare_targets(cloud: GaussianCloud, config: "EncoderConfig", dataset: str 
     return PreparedTargets(targets, settings, device, psnr)
 
 
-def scene_weights(cloud: GaussianCloud, config: "EncoderConfig",
+def scene_weights(cloud: GaussianCloud, config: EncoderConfig,
                   prepared: PreparedTargets) -> np.ndarray:
     """Blend weight (n,) of every Gaussian of the whole scene over spread training views: what
     pruning keeps, and what ranks sketch clusters for the cap on the sketch layer's share."""
@@ -86,8 +84,8 @@ def scene_weights(cloud: GaussianCloud, config: "EncoderConfig",
                          prepared.settings, prepared.device)
 
 
-def factor_trial(sketch: "SketchOutcome", patch: GaussianCloud, writer: "SceneWriter",
-                 config: "EncoderConfig", weights: np.ndarray) -> bytes | None:
+def factor_trial(sketch: SketchOutcome, patch: GaussianCloud, writer: SceneWriter,
+                 config: EncoderConfig, weights: np.ndarray) -> bytes | None:
     """The file with the patch pruned by the retrain config's factor and coded without
     retraining (None with a target size or without retraining): the retrained file's layout to
     within the gains of training, cheap enough to size the sketch layer's share before training."""
@@ -98,11 +96,11 @@ def factor_trial(sketch: "SketchOutcome", patch: GaussianCloud, writer: "SceneWr
                         kept_count(len(patch), config.retrain.patch_downsample))
 
 
-def encode_pruned_patch(cloud: GaussianCloud, sketch: "SketchOutcome", patch: GaussianCloud,
-                        writer: "SceneWriter", config: "EncoderConfig",
+def encode_pruned_patch(cloud: GaussianCloud, sketch: SketchOutcome, patch: GaussianCloud,
+                        writer: SceneWriter, config: EncoderConfig,
                         prepared: PreparedTargets, weights: np.ndarray,
                         dataset: str | Path | None, control: RunControl,
-                        progress: "ProgressFactory", times: dict[str, float]) -> PatchChoice:
+                        progress: ProgressFactory, times: dict[str, float]) -> PatchChoice:
     """Prune (and retrain, when ``config.retrain`` is set) the patch, sized by the config.
     ``weights`` are :func:`scene_weights` of the whole scene."""
     retrain = config.retrain
@@ -145,10 +143,10 @@ def encode_pruned_patch(cloud: GaussianCloud, sketch: "SketchOutcome", patch: Ga
                     checkpointer, progress, times, stats)
 
 
-def _retrain(retrain: RetrainConfig, targets: Targets, writer: "SceneWriter",
+def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
              encoder: PatchEncoder, patch: GaussianCloud, kept: np.ndarray,
-             plan: RatePlan | None, config: "EncoderConfig", control: RunControl,
-             checkpointer: Checkpointer | None, progress: "ProgressFactory",
+             plan: RatePlan | None, config: EncoderConfig, control: RunControl,
+             checkpointer: Checkpointer | None, progress: ProgressFactory,
              times: dict[str, float], stats: dict) -> PatchChoice:
     stage = RetrainStage(retrain, targets, writer.decoded_sketch(), encoder, config.seed,
                          control, checkpointer)
@@ -211,14 +209,14 @@ def build_targets(cloud: GaussianCloud, config: RetrainConfig, dataset: str | Pa
                                 device)
 
 
-def _trial(writer: "SceneWriter", encoder: PatchEncoder, patch: GaussianCloud,
+def _trial(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
            weights: np.ndarray):
     """count -> bytes of the file with the ``count`` most important patch Gaussians, coded
     without retraining (rate control's size model)."""
     return lambda count: len(_pruned_file(writer, encoder, patch, weights, count))
 
 
-def _pruned_file(writer: "SceneWriter", encoder: PatchEncoder, patch: GaussianCloud,
+def _pruned_file(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
                  weights: np.ndarray, count: int) -> bytes:
     """The file with only the ``count`` most important patch Gaussians, coded as they are."""
     if count == 0:
@@ -227,7 +225,7 @@ def _pruned_file(writer: "SceneWriter", encoder: PatchEncoder, patch: GaussianCl
     return writer.write(encoder.encode(patch.subset(top), importance=weights[top]))
 
 
-def _sized(writer: "SceneWriter", encoder: PatchEncoder, trained: GaussianCloud,
+def _sized(writer: SceneWriter, encoder: PatchEncoder, trained: GaussianCloud,
            quantized: Quantized, importance: np.ndarray):
     """count -> bytes of the file with the ``count`` most important quantized Gaussians."""
     def size(count: int) -> int:

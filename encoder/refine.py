@@ -44,6 +44,7 @@ import numpy as np
 from spcodec.attributes import SketchAttribute, decode_rotation, encode_opacity
 from spcodec.cloud import GaussianCloud
 
+from .config import RefineConfig
 from .polyfit import (
     COMBINED_ATTRIBUTES,
     AttributeScales,
@@ -55,131 +56,6 @@ from .polyfit import (
 )
 
 __all__ = ["RefineConfig", "RefineResult", "RefineStats", "refine", "iqr_filter", "iqr_outliers"]
-
-
-@dataclass(frozen=True)
-class RefineConfig:
-    """Every knob of model fitting and refinement, with its unit and the reason for its default."""
-
-    # ---- error measure
-    weights: tuple[float, float, float, float] = (0.25, 0.25, 0.25, 0.25)
-    """Weights of scale, rotation, opacity, colour-DC normalized MSE in MSE_combined (paper: equal
-    0.25). Unitless."""
-    tau_max: float = 0.1
-    """Threshold on MSE_combined (unitless: squared error / scene robust variance, averaged over the
-    four attributes): 0.1 ~ an RMS error of 32% of each attribute's scene-wide spread. The paper
-    gives no value. Real captures are noisy at the finest scale (on fourth_st a Gaussian's nearest
-    neighbour differs in log scale / rotation by ~0.9 / 0.5 of the scene variance), so the sketch
-    share depends strongly on tau (bench/bench_refine.py sweeps it); 0.1 is a fidelity-first
-    default for the orchestrator to revisit with a rendering measurement."""
-
-    # ---- degree search
-    min_degree: int = 0
-    """Lowest degree tried. 0 (a per-cluster constant) is allowed because it is the cheapest model
-    and is often enough for opacity or colour of a small cluster."""
-    max_degree: int = 10
-    """Highest degree tried (paper: grid search over [1, 10]; 10 is the format's maximum)."""
-    degree_lambda: float = 1e-2
-    """Rate-distortion multiplier: a degree is worth its bytes if it lowers ``weight * nMSE`` by at
-    least ``degree_lambda`` per coefficient byte per Gaussian. Unit: normalized MSE per
-    (byte/Gaussian); e.g. in a 1000-point cluster one more colour degree (~60 bytes) must buy 6e-4
-    of weighted error. tau_max is still met whenever possible (lambda is lowered for that
-    cluster), so lambda only decides how far below tau to go. On biker, 2e-3 / 1e-2 / 5e-2 gave
-    5.9 / 4.5 / 3.2 coefficient bytes per sketch Gaussian at about the same sketch share and
-    median MSE_combined 0.060 / 0.067 / 0.079 (Draco positions cost ~3-4 B): 1e-2 is the middle."""
-    min_points_per_coefficient: float = 3.0
-    """A degree is admissible only when n >= this * M(d): fewer points would make the model cost
-    more than ~1 byte per output per Gaussian (a codebook index) and merely interpolate."""
-    ridge: float = 1e-7
-    """Ridge strength relative to n on every coefficient but the intercept (features are in
-    [-1, 1]). Small enough not to bias well-posed fits, large enough to stop the huge cancelling
-    coefficients an ill-conditioned monomial fit produces, which float16 cannot represent."""
-    frame_floor: float = 1e-2
-    """Each half extent is at least this fraction of the largest one, so a flat axis is not
-    stretched to [-1, 1] (there the fit would chase position noise). Unitless."""
-    sh_rest_degree: int | None = 1
-    """Highest degree of the optional SH-rest model (selected with the same cost, capped here and
-    by max_degree); None = no model, so sketch Gaussians decode with zero higher SH bands (the
-    paper's choice). Measured on fourth_st (tau_max 0.4, 12k sketch Gaussians, renders against the
-    original at 8 views): no model 37.47 dB; degree <= 0 37.82 dB for +10 KB; <= 1 38.00 dB for
-    +37 KB; <= 2 38.11 dB for +70 KB. Higher bands are not smooth in position, but a per-cluster
-    constant or plane recovers half the loss at a better rate than any codebook knob, so <= 1."""
-    sh_rest_weight: float = 0.25
-    """Weight of the SH-rest normalized MSE in its own degree cost (it is not part of
-    MSE_combined). 0.25 puts it on the footing of each of the four combined attributes."""
-
-    # ---- splitting
-    beta: float = 0.5
-    """Weight of the residuals against positions in the K-means features (paper's beta). 0.5:
-    residuals (normalized, ~sqrt(tau) and above in failing clusters) and positions (in [-1, 1])
-    then pull comparably, so parts are spatially coherent yet separate differently-modelled
-    Gaussians."""
-    k_max: int = 4
-    """Most parts one split makes (paper: k <= 4)."""
-    s_min: int = 32
-    """Smallest sketch cluster, Gaussians. Below it the fixed costs (cluster record, Draco header,
-    >= 4 models) outweigh the ~10 bytes per Gaussian sketch saves over patch."""
-    t_max: int = 6
-    """Deepest split level. A node still failing tau_max at this depth goes to patch (never
-    accepted over the threshold). 6 levels allow parts of 1/64 .. 1/4096 of a cluster, far below
-    s_min for all but huge clusters, so it only stops pathological recursions."""
-    min_split_gain: float | None = 0.1
-    """A part that still fails tau_max goes to patch ('no_gain') unless its own models' MSE_combined
-    is at least this fraction below that of its parent's models on the same Gaussians (0: not
-    worse). Splitting is meant to isolate coherent sub-regions;
-    when parts are as badly modelled as the whole, the cluster is noise at this scale, and
-    recursing to s_min would multiply fits ~2n/s_min times for clusters that end in patch anyway
-    (on real scenes this bounds refinement cost). None disables the test."""
-    kmeans_n_init: int = 1
-    """K-means restarts with k-means++ seeding (fixed for determinism). 1 is scikit-learn's own
-    'auto' choice for k-means++ and, with k <= 4 in ~15 dimensions, restarts rarely change the
-    split while each costs as much as a model fit on small nodes."""
-    kmeans_max_samples: int = 20000
-    """K-means is fit on at most this many Gaussians of a node (a fixed-seed subsample) and then
-    assigns all of them; bounds the cost of huge clusters without changing small ones."""
-    random_state: int = 0
-    """Seed of K-means and of its subsample, so results are reproducible."""
-
-    # ---- IQR post-processing
-    iqr_k: float | None = 1.5
-    """Tukey fence multiplier: a Gaussian of an accepted cluster whose ``iqr_quantity`` (any of
-    the three axes) lies outside [Q1 - k IQR, Q3 + k IQR] of its cluster goes to patch. 1.5 is
-    Tukey's standard value (the paper's 'IQR method'). None disables the post-processing."""
-    iqr_min_spread: float = 0.2
-    """Floor on the IQR the fences are built from, in log-scale units (0.2 = a factor 1.22). In a
-    cluster modelled almost perfectly the residual IQR is ~0 and plain fences would flag Gaussians
-    whose size is off by 1%; with the floor and k = 1.5 nothing within ~0.3 (35% in size) of the
-    quartiles is ever flagged. On make_scene curves without the floor, 10-30% of well-modelled
-    Gaussians were flagged."""
-    iqr_quantity: str = "residual"
-    """What the fences are put on, per axis: 'residual' = decoded minus original log scale (how
-    wrong the decoded size is), 'decoded' = the decoded log scale itself (the paper's literal
-    wording). Default 'residual': on biker the 'decoded' rule moved 8.5% of sketch Gaussians whose
-    scale error was no larger than the rest's (a smooth model's extremes are merely the cluster's
-    periphery), while the paper's stated aim is to drop *badly modelled* (too long / too thin)
-    Gaussians, which is what the residual rule selects, injected outliers included."""
-
-    def __post_init__(self) -> None:
-        if len(self.weights) != 4 or min(self.weights) < 0:
-            raise ValueError("weights must be four non-negative numbers")
-        if not 0 <= self.min_degree <= self.max_degree <= 10:
-            raise ValueError("need 0 <= min_degree <= max_degree <= 10")
-        if self.sh_rest_degree is not None and not 0 <= self.sh_rest_degree <= 10:
-            raise ValueError("sh_rest_degree must be None or 0..10")
-        if not 0.0 <= self.beta <= 1.0:
-            raise ValueError("beta must lie in [0, 1]")
-        if self.min_split_gain is not None and not self.min_split_gain < 1.0:
-            raise ValueError("min_split_gain must be None or < 1")
-        if self.tau_max <= 0 or self.s_min < 1 or self.t_max < 0 or self.k_max < 2:
-            raise ValueError("need tau_max > 0, s_min >= 1, t_max >= 0, k_max >= 2")
-        if self.min_points_per_coefficient <= 0 or self.ridge < 0 or self.frame_floor <= 0:
-            raise ValueError("need min_points_per_coefficient > 0, ridge >= 0, frame_floor > 0")
-        if self.kmeans_n_init < 1 or self.kmeans_max_samples < self.k_max:
-            raise ValueError("need kmeans_n_init >= 1 and kmeans_max_samples >= k_max")
-        if (self.iqr_k is not None and self.iqr_k < 0) or self.iqr_min_spread < 0:
-            raise ValueError("iqr_k must be None or >= 0, iqr_min_spread >= 0")
-        if self.iqr_quantity not in ("residual", "decoded"):
-            raise ValueError("iqr_quantity must be 'residual' or 'decoded'")
 
 
 # ------------------------------------------------------------------------------------ results

@@ -34,61 +34,16 @@ import torch
 from spcodec.cloud import GaussianCloud
 from spcodec.errors import Interrupted, UsageError
 from spcodec.imaging.importance import blend_weights
-from spcodec.imaging.render import GaussianParams, RenderSettings
+from spcodec.imaging.render import GaussianParams
 from spcodec.imaging.training.checkpoint import Checkpointer
 from spcodec.imaging.training.loop import FitLoop, StepReport
-from spcodec.imaging.training.optim import FreeGaussians, LearningRates
+from spcodec.imaging.training.optim import FreeGaussians
 from spcodec.imaging.training.targets import Targets
 
+from .config import RetrainConfig
 from .patch import PatchEncoder, Quantized
-from .prune import PruneMethod, select
+from .prune import select
 from .quantaware import CodebookGaussians, with_positions
-
-
-@dataclass
-class RetrainConfig:
-    """Settings of the retraining stage (stored in the file's metadata)."""
-
-    #: Keep ``1 / patch_downsample`` of the patch Gaussians (the paper sweeps 1..20; 1 = keep all).
-    patch_downsample: float = 4.0
-    #: How survivors are chosen: "importance" (largest blend weight over the training views) or
-    #: "uniform" (random, the paper's). See docs/RESULTS.md for the comparison behind the default.
-    prune: PruneMethod = "importance"
-    #: Optimizer steps of the retraining, one training view each.
-    iterations: int = 3000
-    #: Adam rates per attribute (the 3DGS defaults; positions scaled by the camera extent).
-    rates: LearningRates = field(default_factory=LearningRates)
-    #: Distillation: how many training views are sampled around the original, and their side.
-    views: int = 48
-    resolution: int = 400
-    #: Dataset mode: image downscale factor, and at most this many training views (None: all of
-    #: the training split).
-    downscale: int = 1
-    max_views: int | None = None
-    #: Up axis of the scene for sampled views (as for ``spcodec eval``), and whether it renders
-    #: with Mip-Splatting's antialiased opacity (for models trained that way).
-    up: str = "-y"
-    antialiased: bool = False
-    #: Steps of the quantization-aware finish (0: off) and when its one re-assignment happens.
-    finish_iterations: int = 600
-    reassign_at: float = 0.5
-    #: Training views (evenly spread) over which blend weights rank Gaussians for pruning/layers.
-    importance_views: int = 16
-
-    def __post_init__(self) -> None:
-        if self.patch_downsample < 1:
-            raise ValueError(f"patch_downsample must be >= 1, got {self.patch_downsample}")
-        if self.iterations < 0 or self.finish_iterations < 0:
-            raise ValueError("iterations must be >= 0")
-        if self.views < 1 or self.resolution < 8 or self.importance_views < 1:
-            raise ValueError("views and importance_views must be >= 1 and resolution >= 8")
-        if self.downscale < 1 or (self.max_views is not None and self.max_views < 1):
-            raise ValueError("downscale and max_views must be >= 1")
-        if not 0 < self.reassign_at < 1:
-            raise ValueError("reassign_at must lie in (0, 1)")
-
-    def render_settings(self, background: tuple[float, float, float]) -> RenderSettings:
-        return RenderSettings(background=background, antialiased=self.antialiased)
 
 
 @dataclass

@@ -16,42 +16,14 @@ import numpy as np
 from spcodec.cloud import GaussianCloud
 from spcodec.sections import SketchCluster
 
+from .config import RefineConfig, SketchConfig
 from .draco import encode_cluster, encode_ordered, grid_for, robust_diameter
 from .morton import morton_codes
 from .polyfit import AttributeScales, ClusterFit, coded_targets, refit_or_keep
-from .refine import RefineConfig, RefineResult
+from .refine import RefineResult
 
 #: Mean Euclidean error of uniform quantization with step s, for a point uniform in its cell.
 MEAN_ERROR_PER_STEP = 0.4803
-
-
-@dataclass
-class SketchConfig:
-    """Parameters of sketch position coding and of the final acceptance of clusters."""
-
-    #: Target mean position error of sketch Gaussians, relative to the scene's robust diameter
-    #: (the paper reports a mean error below 0.04 %). The Draco quantization step is derived from
-    #: it; smaller targets cost about 3 bits per point per halving.
-    position_error: float = 3e-4
-    #: Draco compression level (0..10; 10 is the smallest output, still fast for point clouds).
-    draco_compression_level: int = 10
-    #: "run": all clusters share one order-preserving Draco blob on a scene-wide grid (one header
-    #: instead of one per cluster: about half the size on clusters of a few dozen Gaussians);
-    #: "per_cluster": one kd-tree blob per cluster (best for clusters of thousands).
-    grouping: str = "run"
-    #: A cluster whose models, refitted on decoded positions, exceed tau_max by more than this
-    #: factor goes back to patch (refits move the error a little either way; 1.0 is strict).
-    tau_tolerance: float = 1.05
-
-    def __post_init__(self) -> None:
-        if not 0 < self.position_error < 1:
-            raise ValueError("position_error must lie in (0, 1)")
-        if not 0 <= self.draco_compression_level <= 10:
-            raise ValueError("draco_compression_level must be in 0..10")
-        if self.tau_tolerance < 1:
-            raise ValueError("tau_tolerance must be >= 1")
-        if self.grouping not in ("run", "per_cluster"):
-            raise ValueError("grouping must be 'run' or 'per_cluster'")
 
 
 @dataclass

@@ -361,7 +361,7 @@ def encode_config(args: argparse.Namespace):
     """The EncoderConfig the encode options describe (checked, with one-line errors)."""
     import dataclasses
 
-    from .encoder.pipeline import EncoderConfig
+    from .encoder.config import EncoderConfig
     from .encoder.presets import preset_config
     from .encoder.ratecontrol import parse_size
 

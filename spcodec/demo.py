@@ -20,7 +20,8 @@ from .synthetic import make_scene
 
 def run_demo(out_dir: Path, seed: int = 0) -> int:
     """Encode, decode and (when possible) evaluate the built-in scene; files go to ``out_dir``."""
-    from .encoder.pipeline import EncoderConfig, encode
+    from .encoder.config import EncoderConfig
+    from .encoder.pipeline import encode
     from .encoder.progress import StageReporter, print_summary
 
     try:

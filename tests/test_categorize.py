@@ -18,13 +18,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from spcodec import GaussianCloud, read_ply
-from spcodec.encoder.categorize import (
-    CategorizeConfig,
-    MultiCriteriaDBSCAN,
-    canonical_labels,
-    categorize,
-    principal_axes,
-)
+from spcodec.encoder.categorize import MultiCriteriaDBSCAN, canonical_labels, categorize, principal_axes
+from spcodec.encoder.config import CategorizeConfig
 from spcodec.encoder.morton import morton_order
 from spcodec.encoder.neighbors import iter_radius_pairs
 from spcodec.synthetic import make_scene

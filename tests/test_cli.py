@@ -280,8 +280,7 @@ def test_help_gives_every_option_its_default_and_range():
 
 def test_help_defaults_match_the_encoder():
     from spcodec.cli import PATCH_LAYERS_DEFAULT, RETRAIN_DEFAULTS
-    from spcodec.encoder.patch import PatchConfig
-    from spcodec.encoder.retrain import RetrainConfig
+    from spcodec.encoder.config import PatchConfig, RetrainConfig
     assert PATCH_LAYERS_DEFAULT == PatchConfig().layers
     defaults = RetrainConfig()
     assert RETRAIN_DEFAULTS == {name: getattr(defaults, name) for name in RETRAIN_DEFAULTS}

@@ -11,8 +11,8 @@ import pytest
 import spcodec
 from spcodec.cli import main
 from spcodec.cloud import GaussianCloud
-from spcodec.encoder.patch import PatchConfig
-from spcodec.encoder.pipeline import EncoderConfig, encode
+from spcodec.encoder.config import EncoderConfig, PatchConfig
+from spcodec.encoder.pipeline import encode
 from spcodec.errors import FormatError, UsageError
 from spcodec.synthetic import make_scene
 

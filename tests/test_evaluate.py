@@ -91,7 +91,8 @@ def test_dataset_mode_scores_renders_against_images(tmp_path, scene):
 
 
 def test_eval_cli_json_and_saved_renders(tmp_path, capsys, scene):
-    from spcodec.encoder.pipeline import EncoderConfig, encode
+    from spcodec.encoder.config import EncoderConfig
+    from spcodec.encoder.pipeline import encode
     ply, spc, renders = tmp_path / "s.ply", tmp_path / "s.spc", tmp_path / "renders"
     spcodec.write_ply(ply, scene)
     spc.write_bytes(encode(scene, EncoderConfig()).data)

@@ -10,14 +10,9 @@ import pytest
 import spcodec
 from spcodec.attributes import PatchAttribute
 from spcodec.cloud import GaussianCloud
+from spcodec.encoder.config import PatchConfig
 from spcodec.encoder.morton import morton_codes
-from spcodec.encoder.patch import (
-    PatchConfig,
-    PatchEncoder,
-    coded_attributes,
-    dequantize,
-    quantized_cloud,
-)
+from spcodec.encoder.patch import PatchEncoder, coded_attributes, dequantize, quantized_cloud
 from spcodec.synthetic import make_scene
 from spcodec.writer import EncodedScene, build_bitstream
 

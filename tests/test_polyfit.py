@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from spcodec.attributes import SketchAttribute as A
 from spcodec.attributes import canonical_rotation
+from spcodec.encoder.config import RefineConfig
 from spcodec.encoder.polyfit import (
     AttributeScales,
     align_quaternions,
@@ -27,7 +28,6 @@ from spcodec.encoder.polyfit import (
     refit_or_keep,
     remeasure,
 )
-from spcodec.encoder.refine import RefineConfig
 from spcodec.polynomial import evaluate, features, monomial_count
 from spcodec.synthetic import make_scene
 

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 
 from spcodec.attributes import SketchAttribute as A
 from spcodec.cloud import GaussianCloud
+from spcodec.encoder.config import RefineConfig
 from spcodec.encoder.polyfit import (
     AttributeScales,
     attribute_errors,
@@ -21,14 +22,7 @@ from spcodec.encoder.polyfit import (
     fit_cluster_detailed,
     residuals,
 )
-from spcodec.encoder.refine import (
-    RefineConfig,
-    RefineResult,
-    choose_k,
-    iqr_filter,
-    iqr_outliers,
-    refine,
-)
+from spcodec.encoder.refine import RefineResult, choose_k, iqr_filter, iqr_outliers, refine
 from spcodec.polynomial import monomial_count
 from spcodec.synthetic import make_scene
 

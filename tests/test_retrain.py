@@ -19,8 +19,10 @@ import torch
 
 import spcodec
 from spcodec.cli import main
-from spcodec.encoder.pipeline import EncoderConfig, SceneWriter, encode
-from spcodec.encoder.retrain import RetrainConfig, RunControl
+from spcodec.encoder.config import EncoderConfig, RetrainConfig
+from spcodec.encoder.pipeline import encode
+from spcodec.encoder.retrain import RunControl
+from spcodec.encoder.stages import SceneWriter
 from spcodec.errors import Interrupted, UsageError
 from spcodec.imaging.cameras import Camera
 from spcodec.imaging.evaluate import DatasetMismatchWarning, EvalConfig, evaluate_against_reference

@@ -11,7 +11,8 @@ import torch
 from hypothesis import given
 from hypothesis import strategies as st
 
-from spcodec.encoder.patch import PatchConfig, PatchEncoder, quantized_cloud
+from spcodec.encoder.config import PatchConfig
+from spcodec.encoder.patch import PatchEncoder, quantized_cloud
 from spcodec.encoder.prune import kept_count, prune_by_importance, prune_uniform, select
 from spcodec.encoder.quantaware import CodebookGaussians
 from spcodec.encoder.ratecontrol import TOLERANCE, fit_count, parse_size, plan_count

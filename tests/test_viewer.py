@@ -39,7 +39,8 @@ def scene(tmp_path_factory):
     """A small structured scene, encoded by our encoder (a sketch of curves and three patch layers
     of blobs), with its decoded PLY and GLB beside it."""
     require()
-    from spcodec.encoder.pipeline import EncoderConfig, encode
+    from spcodec.encoder.config import EncoderConfig
+    from spcodec.encoder.pipeline import encode
     from spcodec.synthetic import make_scene
 
     folder = tmp_path_factory.mktemp("viewer")

@@ -1,0 +1,72 @@
+"""What the encoder's stages hand each other, and how a stage reports progress.
+
+The pipeline (:mod:`.pipeline`) and the pruning/retraining stage (:mod:`.prune_retrain`) both
+work with the sketch stage's outcome and with a writer that turns any patch encoding into the
+file; these types live here, below both, so neither imports the other.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from spcodec.cloud import GaussianCloud
+from spcodec.decoder import decode_layers
+from spcodec.writer import EncodedScene, WriteOptions, build_bitstream
+
+from .patch import PatchEncoding
+
+ProgressFactory = Callable[[str, int | None], "Stage"]
+
+
+class Stage:
+    """Progress of one stage; the default prints nothing. ``update`` may carry figures to show
+    (training steps pass ``loss`` and ``psnr``)."""
+
+    def update(self, count: int = 1, **figures: float) -> None:  # pragma: no cover - trivial
+        pass
+
+    def done(self, summary: str = "") -> None:  # pragma: no cover - trivial
+        pass
+
+
+def silent(name: str, total: int | None) -> Stage:
+    return Stage()
+
+
+@dataclass
+class SketchOutcome:
+    """The sketch stage's result: encoded clusters and where every input Gaussian went."""
+
+    clusters: list
+    sources: list[np.ndarray]
+    """Per encoded cluster, the indices of its input Gaussians in stored order."""
+    patch_idx: np.ndarray
+    """Sorted indices of the input Gaussians left to the patch."""
+    stats: dict
+
+
+@dataclass
+class SceneWriter:
+    """Writes the file of one scene for any patch encoding (the sketch and metadata are fixed),
+    so rate control can size trial files exactly as the final one."""
+
+    sh_degree: int
+    sketch: list
+    metadata: dict
+    options: WriteOptions
+
+    def scene(self, patch: PatchEncoding | None) -> EncodedScene:
+        if patch is None:
+            return EncodedScene(self.sh_degree, self.sketch, [], [], self.metadata)
+        layers = patch.layers if sum(map(len, patch.layers)) else []
+        return EncodedScene(self.sh_degree, self.sketch, patch.codebooks, layers, self.metadata)
+
+    def write(self, patch: PatchEncoding | None) -> bytes:
+        return build_bitstream(self.scene(patch), self.options)
+
+    def decoded_sketch(self) -> GaussianCloud:
+        """The sketch exactly as a decoder will see it (layer 0 of a sketch-only file)."""
+        return decode_layers(self.write(None), max_layer=0).cloud

@@ -22,7 +22,7 @@ from spcodec.polynomial import monomial_count
 from spcodec.writer import EncodedScene, LayerSpec, SectionSpec, assemble, layer_end_offsets
 
 from . import scenes
-from .cases import invalid
+from .declare import invalid
 from .forge import (
     Draft,
     flip,

@@ -22,7 +22,7 @@ from spcodec.sections import Codebook, PatchPositions, SketchCluster
 from spcodec.writer import EncodedScene, LayerSpec, PatchLayer, SectionSpec, layer_end_offsets
 
 from . import scenes
-from .cases import valid
+from .declare import valid
 from .forge import Draft, metadata
 
 F16_MAX = 65504.0

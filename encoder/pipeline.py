@@ -136,8 +136,11 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
         t = time.perf_counter()
         stage = progress("evaluate", None)
         stats["quality"] = judge(data, cloud, config.retrain, dataset, control)
-        stage.done(f"PSNR {stats['quality']['psnr']:.2f} dB, SSIM {stats['quality']['ssim']:.4f} "
-                   f"against {stats['quality']['against']}")
+        quality = stats["quality"]
+        closer = "".join(f", {c['psnr']:.2f} dB at {c['distance']:g} of the distance"
+                         for c in quality["closeups"])
+        stage.done(f"PSNR {quality['psnr']:.2f} dB, SSIM {quality['ssim']:.4f}{closer} against "
+                   f"{quality['against']}")
         times["evaluate"] = time.perf_counter() - t
     return EncodeResult(data, writer.scene(patch), source, stats)
 
@@ -146,7 +149,8 @@ def judge(data: bytes, original: GaussianCloud, retrain: RetrainConfig,
           dataset: str | Path | None, control: RunControl | None) -> dict:
     """Quality of the written file as ``spcodec eval`` measures it with its defaults: against the
     dataset's test images, or against renders of the original at the held-out sampled views
-    (with the encode's ``up`` and ``antialiased``), so the two commands report the same PSNR."""
+    and their close-ups (with the encode's ``up`` and ``antialiased``), so the two commands
+    report the same figures."""
     device = control.device if control is not None else "auto"
     decoded = decode_layers(data).cloud
     if dataset is not None:
@@ -158,9 +162,11 @@ def judge(data: bytes, original: GaussianCloud, retrain: RetrainConfig,
             device=device, up=retrain.up, antialiased=retrain.antialiased))
         against = "renders of the original at held-out views"
     doc = report.to_json()
+    closeups = [{key: c[key] for key in ("distance", "psnr", "ssim", "width", "height")}
+                for c in doc.get("closeups", [])]
     return {"psnr": doc["psnr"], "ssim": doc["ssim"], "lpips": doc["lpips"],
             "views": doc["views"], "width": doc["width"], "height": doc["height"],
-            "against": against}
+            "closeups": closeups, "against": against}
 
 
 def refine_sketch(cloud: GaussianCloud, config: EncoderConfig, progress: ProgressFactory,

@@ -119,6 +119,9 @@ def print_summary(stats: dict) -> None:
         print(f"  quality: PSNR {quality['psnr']:.2f} dB, SSIM {quality['ssim']:.4f} against "
               f"{quality['against']} ({quality['views']} views of {quality['width']}x"
               f"{quality['height']}; `spcodec eval` reports the same)")
+        for close in quality.get("closeups", []):
+            print(f"    closer, at {close['distance']:g} of the distance: PSNR {close['psnr']:.2f} "
+                  f"dB, SSIM {close['ssim']:.4f} ({close['width']}x{close['height']})")
     total = sum(stats["seconds"].values())
     print("  time: " + ", ".join(f"{k} {v:.1f} s" for k, v in stats["seconds"].items())
           + f" (total {total:.1f} s)")

@@ -74,6 +74,17 @@ class Camera:
         return replace(self, width=width, height=height, fx=self.fx * sx, fy=self.fy * sy,
                        cx=self.cx * sx, cy=self.cy * sy)
 
+    def dollied(self, towards: np.ndarray, factor: float) -> "Camera":
+        """The same view direction from ``factor`` times the distance to the point ``towards``
+        (0.5: halfway there), orientation and intrinsics unchanged: a viewer's zoom by walking."""
+        if not factor > 0:
+            raise ValueError(f"a dolly factor must be positive, got {factor}")
+        towards = np.asarray(towards, dtype=np.float64)
+        eye = towards + factor * (self.position - towards)
+        w2c = self.world_to_camera.copy()
+        w2c[:3, 3] = -self.rotation @ eye
+        return replace(self, world_to_camera=w2c)
+
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Image coordinates (n, 2) and camera depths (n,) of world points (n, 3)."""
         cam = points @ self.rotation.T + self.translation

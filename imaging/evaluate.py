@@ -5,6 +5,9 @@ Two modes:
 * **against a reference model** (``--reference ORIG.ply``): both models are rendered at held-out
   views sampled around the *reference* (so both are judged from the same cameras, which see the
   scene), and the renders are compared. This measures what a codec changed, with no dataset needed.
+  The sampled views frame the whole scene, where fine texture falls below a pixel; the same
+  directions are judged again from closer (``closeups``: by default at 1/2 and 1/4 of the
+  distance, 800x800), where a viewer's user looks when they move in.
 * **against a dataset** (``--dataset DIR``): the model is rendered at the dataset's test views and
   compared with the photographs.
 
@@ -85,6 +88,19 @@ class EvalConfig:
     seed: int = 0
     #: Where to write "reference | ours | error" PNGs, one per view (None: nowhere).
     save_renders: Path | None = None
+    #: Closer framings judged besides the sampled one (reference mode only): each factor brings
+    #: every camera that much nearer the scene's robust centre along its own view direction
+    #: (0.5: half the distance); empty: the sampled framing alone.
+    closeups: tuple[float, ...] = (0.5, 0.25)
+    #: Side of the square close-up views, in pixels: finer than the sampled framing, so that
+    #: Gaussians a whole-scene view shows below a pixel cover several.
+    closeup_resolution: int = 800
+
+    def __post_init__(self) -> None:
+        if any(not 0 < f < 1 for f in self.closeups):
+            raise ValueError(f"closeups are distance factors in (0, 1), got {self.closeups}")
+        if self.closeup_resolution < 8:
+            raise ValueError("closeup_resolution must be at least 8")
 
 
 @dataclass
@@ -106,6 +122,10 @@ class EvalReport:
     views: list[ViewResult] = field(default_factory=list)
     device: str = "cpu"
     seconds: float = 0.0
+    distance: float = 1.0
+    """Camera distance relative to the sampled framing (1: the framing itself)."""
+    closeups: list["EvalReport"] = field(default_factory=list)
+    """The same views judged from closer (reference mode), nearest last."""
 
     @property
     def psnr(self) -> float:
@@ -120,18 +140,42 @@ class EvalReport:
         values = [v.lpips for v in self.views]
         return float(np.mean(values)) if values and None not in values else None
 
+    def framing(self, distance: float) -> "EvalReport":
+        """This report (distance 1) or its close-up at ``distance``; KeyError if not judged."""
+        for report in [self, *self.closeups]:
+            if math.isclose(report.distance, distance):
+                return report
+        raise KeyError(f"no framing at {distance} of the distance was judged")
+
     def to_json(self) -> dict:
-        """The ``spcodec eval --json`` document (strict JSON: no NaN or infinity)."""
-        return {
+        """The ``spcodec eval --json`` document (strict JSON: no NaN or infinity). The top level
+        is the sampled framing; ``closeups`` holds the closer ones in the same form."""
+        doc = {
             "psnr": round(self.psnr, 4), "ssim": round(self.ssim, 6),
             "lpips": None if self.lpips is None else round(self.lpips, 6),
             "views": len(self.views), "mode": self.mode,
             "width": self.width, "height": self.height, "device": self.device,
-            "seconds": round(self.seconds, 3),
+            "seconds": round(self.seconds, 3), "distance": self.distance,
             "per_view": [{"name": v.name, "psnr": round(v.psnr, 4), "ssim": round(v.ssim, 6),
                           "lpips": None if v.lpips is None else round(v.lpips, 6),
                           "render_seconds": round(v.render_seconds, 4)} for v in self.views],
         }
+        if self.mode == "reference":
+            doc["closeups"] = [c.to_json() for c in self.closeups]
+        return doc
+
+    def summary_lines(self, name: str) -> list[str]:
+        """One line per framing, as ``spcodec eval`` prints them."""
+        lpips = "n/a (weights not found)" if self.lpips is None else f"{self.lpips:.4f}"
+        lines = [f"{name}: PSNR {self.psnr:.2f} dB, SSIM {self.ssim:.4f}, LPIPS {lpips} over "
+                 f"{len(self.views)} views of {self.width}x{self.height} ({self.mode}, "
+                 f"{self.device}, {self.seconds:.1f} s)"]
+        for close in self.closeups:
+            lpips = "" if close.lpips is None else f", LPIPS {close.lpips:.4f}"
+            lines.append(f"  closer, at {close.distance:g} of the distance: PSNR {close.psnr:.2f} "
+                         f"dB, SSIM {close.ssim:.4f}{lpips} over {len(close.views)} views of "
+                         f"{close.width}x{close.height}")
+        return lines
 
 
 def _renderer(config: EvalConfig, background: tuple[float, float, float]):
@@ -155,8 +199,9 @@ def _renderer(config: EvalConfig, background: tuple[float, float, float]):
 
 def evaluate_against_reference(model: GaussianCloud, reference: GaussianCloud,
                                config: EvalConfig | None = None) -> EvalReport:
-    """Render both models at held-out views sampled around ``reference`` and compare."""
-    from .views import sample_views
+    """Render both models at held-out views sampled around ``reference`` and compare, at the
+    sampled framing and at each of ``config.closeups``."""
+    from .views import robust_bounds, sample_views
 
     config = config or EvalConfig()
     model.check_finite()
@@ -167,13 +212,28 @@ def evaluate_against_reference(model: GaussianCloud, reference: GaussianCloud,
                            split="eval", seed=config.seed, up=config.up)
     upload, draw, device = _renderer(config, config.background)
     ours, theirs = upload(model), upload(reference)
-    report = EvalReport("reference", config.resolution, config.resolution, device=device)
+    report = _compare(ours, theirs, cameras, draw, config, device, "")
+    centre = robust_bounds(reference).centre  # what the sampled views look at
+    zoom = config.closeup_resolution / config.resolution
+    for factor in config.closeups:
+        near = [c.scaled(zoom).dollied(centre, factor) for c in cameras]
+        close = _compare(ours, theirs, near, draw, config, device, f"close_{factor:g}_")
+        close.distance = factor
+        report.closeups.append(close)
+    report.seconds = time.perf_counter() - start
+    return report
+
+
+def _compare(ours, theirs, cameras: list[Camera], draw, config: EvalConfig, device: str,
+             prefix: str) -> EvalReport:
+    """Scores of ``ours`` against ``theirs`` (uploaded models) at ``cameras``."""
+    first = cameras[0]
+    report = EvalReport("reference", first.width, first.height, device=device)
     for i, camera in enumerate(cameras):
         ref_image, _ = draw(theirs, camera)
         image, seconds = draw(ours, camera)
-        report.views.append(_score(f"view_{i:03d}", ref_image, image, seconds))
-        _save_render(config, f"view_{i:03d}.png", ref_image, image)
-    report.seconds = time.perf_counter() - start
+        report.views.append(_score(f"{prefix}view_{i:03d}", ref_image, image, seconds))
+        _save_render(config, f"{prefix}view_{i:03d}.png", ref_image, image)
     return report
 
 

@@ -56,6 +56,21 @@ class Bounded:
         return f"{noun} {'>' if self.exclusive else '>='} {self.low}"
 
 
+def closeup_list(text: str) -> tuple[float, ...]:
+    """An argparse ``type``: comma-separated distance factors in (0, 1), or ``none``."""
+    if text.strip().lower() == "none":
+        return ()
+    try:
+        values = tuple(float(part) for part in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected factors such as 0.5,0.25 or none, got "
+                                         f"{text!r}") from None
+    if not all(0 < v < 1 for v in values):
+        raise argparse.ArgumentTypeError(f"each factor must lie strictly between 0 and 1, got "
+                                         f"{text}")
+    return values
+
+
 SEED = Bounded(int, 0, 2**32 - 1)
 """Seeds of numpy and scikit-learn: non-negative and below 2**32."""
 MAX_LAYER = Bounded(int, 0)
@@ -490,6 +505,12 @@ def _add_eval(p: argparse.ArgumentParser) -> None:
     p.add_argument("--save-renders", metavar="DIR",
                    help="write 'reference | ours | error' PNGs into DIR, created if missing "
                    "(default: none)")
+    p.add_argument("--closeups", type=closeup_list, default=(0.5, 0.25), metavar="F,F",
+                   help="with --reference, also judge the same views from closer: each factor "
+                   "times the distance, comma-separated in (0, 1), or none (default: 0.5,0.25)")
+    p.add_argument("--closeup-resolution", type=Bounded(int, 8, 8192), default=800,
+                   metavar="PIXELS", help="side of the close-up views: %(type)s (default: "
+                   "%(default)s)")
     _add_view_options(p)
 
 
@@ -506,7 +527,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     save = check_writable_folder(args.save_renders) if args.save_renders else None
     config = EvalConfig(views=args.views, resolution=args.resolution, downscale=args.downscale,
                         device=args.device, up=args.up, antialiased=args.antialiased,
-                        save_renders=save)
+                        save_renders=save, closeups=args.closeups,
+                        closeup_resolution=args.closeup_resolution)
     model = load_model(args.input, args.max_layer)
     if args.dataset:
         report = evaluate_against_dataset(model, Path(args.dataset), config)
@@ -515,10 +537,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(report.to_json(), indent=2, allow_nan=False))
     else:
-        lpips = "n/a (weights not found)" if report.lpips is None else f"{report.lpips:.4f}"
-        print(f"{args.input}: PSNR {report.psnr:.2f} dB, SSIM {report.ssim:.4f}, LPIPS {lpips} "
-              f"over {len(report.views)} views of {report.width}x{report.height} "
-              f"({report.mode}, {report.device}, {report.seconds:.1f} s)")
+        print("\n".join(report.summary_lines(args.input)))
     return EXIT_OK
 
 

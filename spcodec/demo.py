@@ -57,9 +57,13 @@ def _report_quality(decoded, original) -> None:
 
     try:
         report = evaluate_against_reference(decoded, original, EvalConfig(
-            views=4, resolution=256, device="cpu", up="-y"))
+            views=4, resolution=256, device="cpu", up="-y", closeups=(0.5,),
+            closeup_resolution=512))
     except ModuleNotFoundError as exc:  # the renderer needs torch (extra "encoder")
         print(f"quality: skipped ({exc.name} is not installed: pip install 'spcodec[encoder]')")
         return
+    close = report.framing(0.5)
     print(f"quality vs original: PSNR {report.psnr:.2f} dB, SSIM {report.ssim:.4f} over "
-          f"{len(report.views)} views of {report.width}x{report.height} ({report.seconds:.1f} s)")
+          f"{len(report.views)} views of {report.width}x{report.height}; at half the distance "
+          f"PSNR {close.psnr:.2f} dB, SSIM {close.ssim:.4f} ({close.width}x{close.height}) "
+          f"({report.seconds:.1f} s)")

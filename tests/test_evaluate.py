@@ -23,7 +23,7 @@ from spcodec.imaging.images import read_image, write_png
 from spcodec.imaging.render import render_image
 from spcodec.synthetic import make_scene
 
-SMALL = EvalConfig(views=3, resolution=96, device="cpu")
+SMALL = EvalConfig(views=3, resolution=96, device="cpu", closeup_resolution=128)
 
 
 @pytest.fixture(scope="module")
@@ -59,11 +59,11 @@ def test_evaluation_is_deterministic(scene):
     noisy = perturbed(scene, 0.1)
     a = evaluate_against_reference(noisy, scene, SMALL).to_json()
     b = evaluate_against_reference(noisy, scene, SMALL).to_json()
-    for doc in (a, b):
+    for doc in (a, b, *a["closeups"], *b["closeups"]):
         doc.pop("seconds")
         for view in doc["per_view"]:
             view.pop("render_seconds")
-    assert a == b
+    assert a == b and len(a["closeups"]) == 2
 
 
 def _tiny_dataset(tmp_path, scene) -> None:
@@ -101,12 +101,58 @@ def test_eval_cli_json_and_saved_renders(tmp_path, capsys, scene):
     doc = json.loads(capsys.readouterr().out)
     assert code == 0 and {"psnr", "ssim", "views", "per_view", "width", "height"} <= doc.keys()
     assert doc["views"] == 2 and 20 < doc["psnr"] < 100 and doc["lpips"] is None
-    saved = sorted(renders.iterdir())
-    assert len(saved) == 2 and read_image(saved[0]).shape == (64, 3 * 64 + 2 * 4, 3)
+    assert [c["distance"] for c in doc["closeups"]] == [0.5, 0.25] and doc["distance"] == 1.0
+    assert all(c["width"] == 800 and c["views"] == 2 for c in doc["closeups"])
+    saved = sorted(p.name for p in renders.iterdir())
+    assert saved == ["close_0.25_view_000.png", "close_0.25_view_001.png",
+                     "close_0.5_view_000.png", "close_0.5_view_001.png", "view_000.png",
+                     "view_001.png"]
+    assert read_image(renders / "view_000.png").shape == (64, 3 * 64 + 2 * 4, 3)
     code = main(["eval", str(spc), "--reference", str(ply), "--json", "--views", "2",
-                 "--resolution", "64", "--device", "cpu", "--max-layer", "0"])
+                 "--resolution", "64", "--device", "cpu", "--max-layer", "0",
+                 "--closeups", "none"])
     sketch_only = json.loads(capsys.readouterr().out)
     assert code == 0 and sketch_only["psnr"] < doc["psnr"]  # a prefix is a coarser model
+    assert sketch_only["closeups"] == []
+
+
+def test_eval_prints_one_line_per_framing(tmp_path, capsys, scene):
+    ply = tmp_path / "s.ply"
+    spcodec.write_ply(ply, scene)
+    code = main(["eval", str(ply), "--reference", str(ply), "--views", "2", "--resolution", "48",
+                 "--closeups", "0.5", "--closeup-resolution", "64", "--device", "cpu"])
+    lines = capsys.readouterr().out.splitlines()
+    assert code == 0 and len(lines) == 2
+    assert "views of 48x48" in lines[0] and "at 0.5 of the distance" in lines[1]
+    assert "views of 64x64" in lines[1]
+
+
+def test_closeups_look_the_same_way_from_nearer(scene):
+    """A close-up camera keeps its view's orientation and intrinsics, at the given share of the
+    distance to the scene's robust centre."""
+    from spcodec.imaging.views import robust_bounds, sample_views
+
+    centre = robust_bounds(scene).centre
+    for camera in sample_views(scene, 3, resolution=(64, 64), split="eval"):
+        near = camera.dollied(centre, 0.25)
+        assert np.allclose(near.rotation, camera.rotation) and near.fx == camera.fx
+        assert np.linalg.norm(near.position - centre) == pytest.approx(
+            0.25 * np.linalg.norm(camera.position - centre))
+        assert np.allclose(near.position - centre, 0.25 * (camera.position - centre))
+
+
+def test_closer_framings_see_what_the_whole_view_hides(scene):
+    """Position noise of a fixed size covers more pixels from nearer: the close-ups score it
+    lower than the whole-scene framing does."""
+    noisy = scene.subset(slice(None))
+    extent = float(np.ptp(scene.means, axis=0).max())
+    noisy.means = (noisy.means + np.random.default_rng(3).normal(
+        0, 2e-3 * extent, noisy.means.shape)).astype(np.float32)
+    config = EvalConfig(views=3, resolution=96, device="cpu", closeups=(0.5, 0.25),
+                        closeup_resolution=192)
+    report = evaluate_against_reference(noisy, scene, config)
+    assert report.framing(0.5).width == 192 and report.framing(1.0) is report
+    assert report.psnr > report.framing(0.5).psnr > report.framing(0.25).psnr
 
 
 def test_render_cli_view_and_turntable(tmp_path, capsys, scene):
@@ -127,6 +173,8 @@ def test_render_cli_view_and_turntable(tmp_path, capsys, scene):
     (["eval", "{ply}", "--reference", "{ply}", "--views", "0"], "--views: must be an integer >= 1"),
     (["eval", "{ply}", "--reference", "{ply}", "--max-layer", "1"], "needs an .spc input"),
     (["eval", "{ply}", "--dataset", "{tmp}/nowhere"], "nowhere"),
+    (["eval", "{ply}", "--reference", "{ply}", "--closeups", "2"], "--closeups: each factor"),
+    (["eval", "{ply}", "--reference", "{ply}", "--closeups", "a,b"], "--closeups: expected"),
     (["render", "{ply}", "-o", "{tmp}/x.png", "--background", "red"], "--background"),
     (["render", "{ply}", "-o", "{tmp}/no/x.png"], "does not exist"),
 ])

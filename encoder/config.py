@@ -342,6 +342,14 @@ class RetrainConfig:
     reassign_at: float = 0.5
     #: Training views (evenly spread) over which blend weights rank Gaussians for pruning/layers.
     importance_views: int = 16
+    #: Quantization-aware retraining: from this share of ``iterations`` on, the patch trains
+    #: through its codebooks (each attribute snapped to its nearest entry and positions to the
+    #: stored grid, gradients passed straight through; encoder/quantaware.py). Under rate control
+    #: the count is fitted to the target at that step, while steps remain to adapt. 1.0: train
+    #: unquantized and quantize afterwards.
+    snap_start: float = 0.3
+    #: Steps between moves of the snapped entries to their groups' weighted centroids.
+    snap_refresh_every: int = 100
 
     def __post_init__(self) -> None:
         if self.patch_downsample < 1:
@@ -354,6 +362,13 @@ class RetrainConfig:
             raise ValueError("downscale and max_views must be >= 1")
         if not 0 < self.reassign_at < 1:
             raise ValueError("reassign_at must lie in (0, 1)")
+        if not 0 <= self.snap_start <= 1 or self.snap_refresh_every < 1:
+            raise ValueError("snap_start must lie in [0, 1] and snap_refresh_every be >= 1")
+
+    @property
+    def snap_step(self) -> int | None:
+        """The retraining step at which snapping starts (None: it never does)."""
+        return None if self.snap_start >= 1 else int(round(self.snap_start * self.iterations))
 
     def render_settings(self, background: tuple[float, float, float]) -> RenderSettings:
         return RenderSettings(background=background, antialiased=self.antialiased)

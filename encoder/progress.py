@@ -111,7 +111,10 @@ def print_summary(stats: dict) -> None:
     if retrain:
         print(f"  retrain ({retrain['prune']} pruning) on the training views: "
               f"{retrain['psnr_before']:.2f} dB before, {retrain['psnr_retrained']:.2f} dB "
-              f"retrained, {retrain['psnr_quantized']:.2f} dB quantized"
+              f"retrained"
+              + (f" ({retrain['psnr_snapped']:.2f} dB through its codebooks)"
+                 if "psnr_snapped" in retrain else "")
+              + f", {retrain['psnr_quantized']:.2f} dB quantized"
               + (f", {retrain['psnr_finished']:.2f} dB after the finish"
                  if "psnr_finished" in retrain else ""))
     quality = stats.get("quality")

@@ -26,7 +26,7 @@ from spcodec.imaging.training.targets import Targets, check_targets, dataset_tar
 from .config import EncoderConfig, RetrainConfig
 from .patch import PatchEncoder, PatchEncoding, Quantized
 from .prune import kept_count, prune_by_importance, select
-from .ratecontrol import TRAIN_MARGIN, RatePlan, fit_count, plan_count, within
+from .ratecontrol import SNAP_MARGIN, TRAIN_MARGIN, RatePlan, fit_count, plan_count, within
 from .retrain import RetrainStage, RunControl, spread
 from .stages import ProgressFactory, SceneWriter, SketchOutcome
 
@@ -119,8 +119,9 @@ def encode_pruned_patch(cloud: GaussianCloud, sketch: SketchOutcome, patch: Gaus
                          "unpruned_bytes": plan.full_bytes, "predicted_count": plan.count}
         if plan.note:
             stats["rate"]["note"] = plan.note
+        margin = TRAIN_MARGIN if retrain is None or retrain.snap_step is None else SNAP_MARGIN
         keep = plan.count if retrain is None else \
-            min(len(patch), math.ceil(plan.count * (1 + TRAIN_MARGIN)))
+            min(len(patch), math.ceil(plan.count * (1 + margin)))
     else:
         keep = kept_count(len(patch), retrain.patch_downsample)
     method = retrain.prune if retrain is not None else "importance"
@@ -150,11 +151,16 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
              times: dict[str, float], stats: dict) -> PatchChoice:
     stage = RetrainStage(retrain, targets, writer.decoded_sketch(), encoder, config.seed,
                          control, checkpointer)
+    if plan is not None:
+        stage.fit_rows = _row_fit(config.target_size, writer, encoder)
     train_stats: dict = {"prune": retrain.prune}
 
     t = time.perf_counter()
     report = progress("retrain", retrain.iterations)
     trained = stage.retrain(patch.subset(kept), train_stats, _meter(report))
+    if stage.kept is not None:  # rate control dropped some when snapping started
+        train_stats["fitted_when_snapping"] = {"from": len(kept), "to": len(stage.kept)}
+        kept = kept[stage.kept]
     report.done(f"{len(kept)} patch Gaussians, {train_stats['psnr_before']:.2f} -> "
                 f"{train_stats['psnr_retrained']:.2f} dB on the training views")
     times["retrain"] = time.perf_counter() - t
@@ -223,6 +229,16 @@ def _pruned_file(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianClou
         return writer.write(None)
     top = prune_by_importance(weights, count)
     return writer.write(encoder.encode(patch.subset(top), importance=weights[top]))
+
+
+def _row_fit(target: int, writer: SceneWriter, encoder: PatchEncoder):
+    """Rate control when snapping starts: the most important rows whose quantized file fits
+    ``target`` (None when all of them do)."""
+    def fit(cloud: GaussianCloud, quantized: Quantized, importance: np.ndarray):
+        count, _ = fit_count(target, len(cloud), _sized(writer, encoder, cloud, quantized,
+                                                        importance))
+        return None if count >= len(cloud) else prune_by_importance(importance, count)
+    return fit
 
 
 def _sized(writer: SceneWriter, encoder: PatchEncoder, trained: GaussianCloud,

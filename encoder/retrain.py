@@ -9,10 +9,11 @@ Order of work, as :class:`RetrainStage` runs it:
    training views (default) or uniformly at random (the paper's); see :mod:`.prune`.
 3. **Retrain** the survivors (positions, scales, rotations, opacities, SH at the scene's degree)
    with Adam at the 3DGS rates, loss 0.8 L1 + 0.2 D-SSIM, the sketch as the file stores it
-   rendered but never changed.
-4. **Quantize** with the patch encoder's codebooks, then the **finish**: fine-tune the codebook
-   entries (and positions at their stored precision) through the renderer with indices fixed,
-   re-assigning indices once midway; see :mod:`.quantaware`.
+   rendered but never changed. From ``snap_start`` on, they train through their codebooks
+   (quantization-aware; under rate control the count is fitted to the target at that step).
+4. **Quantize** with the codebooks trained with (k-means when snapping was off), then the
+   **finish**: fine-tune the codebook entries (and positions at their stored precision) through
+   the renderer with indices fixed, re-assigning indices once midway; see :mod:`.quantaware`.
 5. **Order** the patch by blend weight in the whole scene (sketch included, so what the sketch
    hides ranks low) for the layers.
 
@@ -31,6 +32,7 @@ from typing import Callable, Iterator
 import numpy as np
 import torch
 
+from spcodec.attributes import PatchAttribute
 from spcodec.cloud import GaussianCloud
 from spcodec.errors import Interrupted, UsageError
 from spcodec.imaging.importance import blend_weights
@@ -39,11 +41,16 @@ from spcodec.imaging.training.checkpoint import Checkpointer
 from spcodec.imaging.training.loop import FitLoop, StepReport
 from spcodec.imaging.training.optim import FreeGaussians
 from spcodec.imaging.training.targets import Targets
+from spcodec.sections import Codebook
 
 from .config import RetrainConfig
 from .patch import PatchEncoder, Quantized
 from .prune import select
-from .quantaware import CodebookGaussians, with_positions
+from .quantaware import CodebookGaussians, SnappedGaussians, with_positions
+
+RowFit = Callable[[GaussianCloud, Quantized, np.ndarray], "np.ndarray | None"]
+"""Rate control's choice when snapping starts: given the Gaussians, their k-means quantization and
+importance, the rows to keep (sorted) or None to keep all."""
 
 
 @dataclass
@@ -102,6 +109,12 @@ class RetrainStage:
         self.importance_cameras = spread(targets.cameras, config.importance_views)
         self.saved: dict | None = None
         self.trained: GaussianCloud | None = None
+        #: Rate control's fit when snapping starts (None: keep every survivor).
+        self.fit_rows: RowFit | None = None
+        #: The codebooks snapping trained with (None: it never started) and the rows of the
+        #: survivors still trained when retraining ended (None: all).
+        self.snapped: list[Codebook] | None = None
+        self.kept: np.ndarray | None = None
 
     # ---------------------------------------------------------------------------- pruning
     def patch_weights(self, scene: GaussianCloud, patch_rows: np.ndarray) -> np.ndarray:
@@ -124,27 +137,35 @@ class RetrainStage:
             self.saved = checkpointer.load()
         elif checkpointer is not None:
             checkpointer.refuse_stale()
-        model = FreeGaussians(survivors, self.device, self.config.rates, self.targets.extent)
+        model = self._model(survivors)
         loop = self._loop(model, self.config.iterations)
         stats["psnr_before"] = loop.mean_psnr()
         start = time.perf_counter()
         saved = self.saved
         if saved is not None and saved["stage"] != "retrain":
             trained = _cloud_from_state(saved["state"]["trained"])
+            self._restore_snap(saved["state"].get("snap"))
         else:
             if saved is not None:
                 model.load_state_dict(saved["state"]["model"])
                 loop.step = saved["step"]
             self._run_stage("retrain", loop, lambda: {"model": model.state_dict()}, on_step)
             trained = model.to_cloud()
+            if isinstance(model, SnappedGaussians) and model.snapping:
+                self.snapped, self.kept = model.snap.codebooks(), model.rows
+                stats["psnr_snapped"] = loop.mean_psnr()
         self.trained = trained
         stats["retrain_seconds"] = time.perf_counter() - start
         stats["psnr_retrained"] = loop.mean_psnr(GaussianParams.from_cloud(trained, self.device))
         return trained
 
     def quantize(self, trained: GaussianCloud) -> tuple[Quantized, np.ndarray]:
-        """k-means codebooks for ``trained`` (weighted by blend weight) and that weight."""
+        """The codebooks retraining snapped to (else k-means weighted by blend weight) with the
+        indices of ``trained``, and its blend weights."""
         importance = self.rank(trained)
+        if self.snapped is not None:
+            return Quantized(self.snapped, self.patch_encoder.assign(trained, self.snapped)), \
+                importance
         weights = self.patch_encoder.kmeans_weights(importance)
         return self.patch_encoder.quantize(trained, weights), importance
 
@@ -177,9 +198,10 @@ class RetrainStage:
             if on_step is not None:
                 on_step(report)
 
-        trained_state = _cloud_state(self.trained)
-        self._run_stage("finish", loop, lambda: {"model": model.state_dict(),
-                                                 "trained": trained_state}, reassign)
+        trained_state = {"model": None, "trained": _cloud_state(self.trained),
+                         "snap": self._snap_state()}
+        self._run_stage("finish", loop, lambda: {**trained_state, "model": model.state_dict()},
+                        reassign)
         stats["psnr_finished"] = loop.mean_psnr()
         stats["finish_seconds"] = time.perf_counter() - start
         return (Quantized(model.codebooks(), model.index_arrays()),
@@ -193,6 +215,47 @@ class RetrainStage:
         return self.patch_weights(scene, np.arange(offset, offset + len(patch)))
 
     # ---------------------------------------------------------------------------- helpers
+    def _model(self, survivors: GaussianCloud) -> FreeGaussians | SnappedGaussians:
+        """Free Gaussians, snapped to their codebooks from ``snap_step`` on when configured."""
+        cfg = self.config
+        if cfg.snap_step is None:
+            return FreeGaussians(survivors, self.device, cfg.rates, self.targets.extent)
+        return SnappedGaussians(survivors, self.device, cfg.rates, self.targets.extent,
+                                cfg.snap_step, cfg.snap_refresh_every, self._snap_codebooks,
+                                self.patch_encoder.config.position_bits)
+
+    def _snap_codebooks(self, cloud: GaussianCloud
+                        ) -> tuple[np.ndarray | None, list[Codebook], np.ndarray]:
+        """When snapping starts: the rows rate control keeps (None: all), k-means codebooks of
+        those rows weighted by blend weight, and those weights."""
+        encoder = self.patch_encoder
+        importance = self.rank(cloud)
+        rows = None
+        if self.fit_rows is not None:
+            rows = self.fit_rows(cloud, encoder.quantize(cloud, encoder.kmeans_weights(
+                importance)), importance)
+            if rows is not None:
+                cloud, importance = cloud.subset(rows), importance[rows]
+        weights = encoder.kmeans_weights(importance)
+        if weights is None:
+            weights = np.ones(len(cloud))
+        return rows, encoder.quantize(cloud, weights).codebooks, weights
+
+    def _snap_state(self) -> dict | None:
+        if self.snapped is None:
+            return None
+        kept = torch.as_tensor(self.kept) if self.kept is not None else None
+        return {"entries": {cb.attribute.name: torch.from_numpy(cb.entries.astype(np.float32))
+                            for cb in self.snapped}, "kept": kept}
+
+    def _restore_snap(self, state: dict | None) -> None:
+        """The snapped codebooks and kept rows of a checkpoint written after retraining."""
+        if not state:
+            return
+        self.snapped = [Codebook(PatchAttribute[name], entries.numpy().astype(np.float16))
+                        for name, entries in state["entries"].items()]
+        self.kept = None if state["kept"] is None else state["kept"].numpy()
+
     def _loop(self, model, total: int) -> FitLoop:
         return FitLoop(model, self.targets, self.settings, total, seed=self.seed,
                        frozen=self.frozen, stop=self.control.stop)

@@ -19,7 +19,7 @@ import torch
 
 import spcodec
 from spcodec.cli import main
-from spcodec.encoder.config import EncoderConfig, RetrainConfig
+from spcodec.encoder.config import EncoderConfig, PatchConfig, RetrainConfig
 from spcodec.encoder.pipeline import encode
 from spcodec.encoder.retrain import RunControl
 from spcodec.encoder.stages import SceneWriter
@@ -64,6 +64,25 @@ def test_retraining_beats_the_no_retrain_encode_at_equal_size(scene):
     assert ours > theirs + 1.0, (ours, theirs)
     stats = retrained.stats["retrain"]
     assert stats["psnr_retrained"] > stats["psnr_before"] + 1.0
+
+
+def test_snapping_to_codebooks_while_training_loses_less_to_quantization(scene):
+    """Training through the codebooks from early on: quantizing the result costs less of what
+    retraining reached, and the quantized patch is better, than quantizing once afterwards (same
+    steps; codebooks of 8 entries, so that quantization costs something on this small scene)."""
+    def run(snap_start: float) -> dict:
+        config = dataclasses.replace(
+            retrain_config(iterations=150, finish_iterations=0, snap_start=snap_start),
+            patch=PatchConfig(codebook_size=8))
+        return encode(scene, config).stats["retrain"]
+
+    snapped, after = run(0.3), run(1.0)
+    assert "psnr_snapped" in snapped and "psnr_snapped" not in after
+    assert snapped["psnr_quantized"] == pytest.approx(snapped["psnr_snapped"], abs=0.05)
+    lost = {name: stats["psnr_retrained"] - stats["psnr_quantized"]
+            for name, stats in (("snapped", snapped), ("after", after))}
+    assert lost["snapped"] < 0.75 * lost["after"], lost
+    assert snapped["psnr_quantized"] > after["psnr_quantized"]
 
 
 def test_the_finish_moves_codebooks_and_reports_its_gain(scene):
@@ -125,9 +144,12 @@ def test_training_never_changes_the_frozen_tensors(scene):
 
 
 # --------------------------------------------------------------------- checkpoint, resume
-@pytest.mark.parametrize("stop_stage, stop_at", [("retrain", 23), ("finish", 5)])
-def test_interrupt_and_resume_give_the_same_bytes(tmp_path, scene, stop_stage, stop_at):
-    config = retrain_config(iterations=40)
+@pytest.mark.parametrize("stop_stage, stop_at, target", [
+    ("retrain", 5, None), ("retrain", 23, None), ("finish", 5, None),
+    ("retrain", 23, 15_000), ("finish", 5, 15_000),  # rows dropped when snapping started (12)
+])
+def test_interrupt_and_resume_give_the_same_bytes(tmp_path, scene, stop_stage, stop_at, target):
+    config = dataclasses.replace(retrain_config(iterations=40), target_size=target)
     whole = encode(scene, config).data
 
     control = RunControl(device="cpu", checkpoint=tmp_path / "s.spc.ckpt", checkpoint_every=10)

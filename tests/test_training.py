@@ -12,9 +12,16 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from spcodec.encoder.config import PatchConfig
+from spcodec.encoder.kmeans import nearest
 from spcodec.encoder.patch import PatchEncoder, quantized_cloud
 from spcodec.encoder.prune import kept_count, prune_by_importance, prune_uniform, select
-from spcodec.encoder.quantaware import CodebookGaussians
+from spcodec.encoder.quantaware import (
+    CodebookGaussians,
+    Snap,
+    SnappedGaussians,
+    coded_tensors,
+    nearest_entry,
+)
 from spcodec.encoder.ratecontrol import TOLERANCE, fit_count, parse_size, plan_count
 from spcodec.errors import UsageError
 from spcodec.imaging.training.checkpoint import Checkpointer, checkpoint_path, fingerprint
@@ -155,6 +162,106 @@ def test_positions_pass_through_the_16_bit_grid(cloud):
     cells = (rendered - model.grid_origin.numpy()) / model.grid_step
     np.testing.assert_allclose(cells, np.round(cells), atol=1e-2)
     assert np.abs(rendered - cloud.means).max() <= model.grid_step
+
+
+@given(st.integers(1, 5), st.integers(1, 40), st.integers(1, 300), st.integers(0, 2**31))
+def test_snapping_picks_the_nearest_entry_as_the_encoder_does(dim, k, m, seed):
+    rng = np.random.default_rng(seed)
+    entries = np.unique(rng.normal(size=(k, dim)).astype(np.float16), axis=0).astype(np.float32)
+    groups = rng.normal(size=(m, dim)).astype(np.float32)
+    got = nearest_entry(torch.from_numpy(groups), torch.from_numpy(entries)).numpy()
+    want = nearest(groups, entries)
+    # equal, or a tie to within float32 rounding
+    d = ((groups[:, None, :] - entries[None]) ** 2).sum(axis=2)
+    np.testing.assert_allclose(d[np.arange(m), got], d[np.arange(m), want], rtol=1e-5, atol=1e-6)
+
+
+def _snap_of(cloud, size: int = 16) -> Snap:
+    codebooks = PatchEncoder(PatchConfig(codebook_size=size), seed=0).quantize(cloud).codebooks
+    return Snap.from_codebooks(codebooks, torch.device("cpu"))
+
+
+def test_snapped_values_are_entries_with_a_straight_through_gradient(cloud):
+    from spcodec.imaging.render import GaussianParams
+
+    params = GaussianParams.from_cloud(cloud, "cpu", requires_grad=True)
+    snap = _snap_of(cloud)
+    values = coded_tensors(params, list(snap.entries))
+    snapped = snap.apply(values)
+    for attr, value in snapped.items():
+        rows = value.detach().reshape(-1, snap.entries[attr].shape[1]).numpy()
+        assert {tuple(r) for r in rows} <= {tuple(e) for e in snap.entries[attr].numpy()}
+    snapped[next(iter(snapped))].sum().backward()
+    assert params.scales.grad is not None and torch.equal(params.scales.grad,
+                                                          torch.ones_like(params.scales))
+
+
+def test_refreshing_entries_never_increases_the_weighted_error(cloud):
+    from spcodec.imaging.render import GaussianParams
+
+    params = GaussianParams.from_cloud(cloud, "cpu")
+    snap = _snap_of(cloud, size=8)
+    values = {a: v + 0.05 for a, v in coded_tensors(params, list(snap.entries)).items()}
+    weights = torch.rand(len(cloud), generator=torch.Generator().manual_seed(0)) + 0.1
+
+    def error() -> float:
+        total = 0.0
+        for attr, v in snap.apply(values).items():
+            per = ((v - values[attr]) ** 2).reshape(len(cloud), -1).sum(dim=1)
+            total += float((per * weights).sum())
+        return total
+
+    before = error()
+    snap.refresh(values, weights)
+    after = error()
+    assert after < before
+    assert all(e.dtype == torch.float32 and torch.equal(e, e.half().float())
+               for e in snap.entries.values())
+
+
+def _snapped(cloud, start: int, keep=None) -> SnappedGaussians:
+    encoder = PatchEncoder(PatchConfig(codebook_size=16), seed=0)
+
+    def quantize(current):
+        rows = keep
+        part = current if rows is None else current.subset(rows)
+        return rows, encoder.quantize(part).codebooks, np.ones(len(part))
+
+    return SnappedGaussians(cloud, torch.device("cpu"), LearningRates(), 1.0, start=start,
+                            refresh_every=3, quantize=quantize)
+
+
+def test_snapped_gaussians_render_what_a_decoder_reconstructs(cloud):
+    model = _snapped(cloud, start=2)
+    free = model.params()
+    np.testing.assert_array_equal(free.scales.detach().numpy(), cloud.scales)
+    for step in range(3):
+        model.before_step(step, 10)
+    assert model.snapping
+    got = model.params()
+    codebooks, indices = model.quantized()
+    from spcodec.encoder.patch import Quantized
+    want = quantized_cloud(Quantized(codebooks, indices), cloud.means, cloud.sh_degree)
+    np.testing.assert_allclose(got.scales.detach().numpy(), want.scales, atol=1e-6)
+    np.testing.assert_allclose(got.sh.detach().numpy()[:, 0], want.sh_dc, atol=1e-6)
+    np.testing.assert_allclose(got.opacities.detach().numpy(), want.opacities, atol=1e-4)
+    origin, step = model.grid
+    cells = (got.means.detach().numpy() - origin.numpy()) / step
+    np.testing.assert_allclose(cells, np.round(cells), atol=1e-2)
+
+
+def test_snapping_keeps_the_rows_rate_control_chose_and_checkpoints_them(cloud):
+    keep = np.arange(0, len(cloud), 3)
+    model = _snapped(cloud, start=1, keep=keep)
+    for step in range(2):
+        model.before_step(step, 10)
+    assert len(model.params().means) == len(keep)
+    np.testing.assert_array_equal(model.kept_rows(), keep)
+    state = model.state_dict()
+    again = _snapped(cloud, start=1, keep=keep)
+    again.load_state_dict(state)
+    np.testing.assert_array_equal(again.kept_rows(), keep)
+    assert torch.equal(again.params().scales, model.params().scales)
 
 
 # ----------------------------------------------------------------------------- checkpoints

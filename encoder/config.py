@@ -329,6 +329,15 @@ class RetrainConfig:
     #: Distillation: how many training views are sampled around the original, and their side.
     views: int = 48
     resolution: int = 400
+    #: Distillation close-ups: this many more training views from ``close_distance`` times as
+    #: far (0.5: half way to the scene), ``close_resolution`` pixels across, each trained as a
+    #: crop of ``close_crop`` pixels around a point of the scene (a crop costs its pixels, not
+    #: the frame's). Whole-scene views leave fine texture below a pixel: trained on them alone,
+    #: guitar's close-up lost 2.2 dB more in PlayCanvas (docs/RESULTS.md section 13). 0: none.
+    close_views: int = 48
+    close_distance: float = 0.5
+    close_resolution: int = 800
+    close_crop: int = 256
     #: Dataset mode: image downscale factor, and at most this many training views (None: all of
     #: the training split).
     downscale: int = 1
@@ -358,6 +367,10 @@ class RetrainConfig:
             raise ValueError("iterations must be >= 0")
         if self.views < 1 or self.resolution < 8 or self.importance_views < 1:
             raise ValueError("views and importance_views must be >= 1 and resolution >= 8")
+        if self.close_views < 0 or not 0 < self.close_distance <= 1 or \
+                not 8 <= self.close_crop <= self.close_resolution:
+            raise ValueError("close_views must be >= 0, close_distance in (0, 1] and close_crop "
+                             "in 8..close_resolution")
         if self.downscale < 1 or (self.max_views is not None and self.max_views < 1):
             raise ValueError("downscale and max_views must be >= 1")
         if not 0 < self.reassign_at < 1:

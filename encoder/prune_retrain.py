@@ -80,7 +80,8 @@ def scene_weights(cloud: GaussianCloud, config: EncoderConfig,
     """Blend weight (n,) of every Gaussian of the whole scene over spread training views: what
     pruning keeps, and what ranks sketch clusters for the cap on the sketch layer's share."""
     view_config = config.retrain or _NO_RETRAIN
-    return blend_weights(cloud, spread(prepared.targets.cameras, view_config.importance_views),
+    return blend_weights(cloud, spread(prepared.targets.whole_cameras,
+                                       view_config.importance_views),
                          prepared.settings, prepared.device)
 
 
@@ -208,11 +209,13 @@ def build_targets(cloud: GaussianCloud, config: RetrainConfig, dataset: str | Pa
         from spcodec.imaging.datasets import load_dataset
         return dataset_targets(load_dataset(dataset, downscale=config.downscale), device,
                                config.max_views)
-    from spcodec.imaging.views import sample_views
+    from spcodec.imaging.views import close_crops, sample_views
     cameras = sample_views(cloud, config.views, resolution=(config.resolution, config.resolution),
                            split="train", up=config.up)
+    crops = close_crops(cloud, config.close_views, config.close_distance, config.close_resolution,
+                        config.close_crop, up=config.up) if config.close_views else []
     return distillation_targets(cloud, cameras, config.render_settings(DISTILLATION_BACKGROUND),
-                                device)
+                                device, crops)
 
 
 def _trial(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,

@@ -106,7 +106,7 @@ class RetrainStage:
         self.settings = config.render_settings(targets.background)
         self.frozen = GaussianParams.from_cloud(sketch, self.device) if len(sketch) else None
         self.patch_encoder = patch_encoder
-        self.importance_cameras = spread(targets.cameras, config.importance_views)
+        self.importance_cameras = spread(targets.whole_cameras, config.importance_views)
         self.saved: dict | None = None
         self.trained: GaussianCloud | None = None
         #: Rate control's fit when snapping starts (None: keep every survivor).

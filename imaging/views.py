@@ -369,3 +369,36 @@ def _place(bounds: SceneBounds, up: np.ndarray, elevation: float, azimuth: float
         rel_depth = (bounds.points - target) @ (-direction)
         distance = max(distance, float(-rel_depth.min()) * 1.05)  # stay outside the robust box
     return Camera.look_at(target + distance * direction, target, up, width, height, fov_y, name)
+
+
+def close_crops(cloud: GaussianCloud, count: int, distance: float = 0.5,
+                resolution: int = 800, crop: int = 256, seed: int = 0,
+                up: Sequence[float] | str = DEFAULT_UP) -> list[Camera]:
+    """``count`` training views from nearer, each cut to a ``crop``-pixel square of its frame.
+
+    Whole-scene views leave fine texture below a pixel, so a model trained on them alone never
+    learns it. These views take the directions of a separate set of training views, come
+    ``distance`` times as far from the robust centre (0.5: half way) and have ``resolution``
+    pixels across; a training step renders only a crop of ``crop`` pixels, centred on a random
+    robust point the view sees (seeded), so detail costs its pixels and not the whole frame. The
+    crop keeps the full view's intrinsics, shifted: its pixels are those of the full view.
+    """
+    if not 0 < distance <= 1:
+        raise UsageError(f"close-up distance must lie in (0, 1], got {distance}")
+    if not 8 <= crop <= resolution:
+        raise UsageError(f"crop must lie in 8..{resolution} pixels, got {crop}")
+    bounds = robust_bounds(cloud)
+    directions = sample_views(cloud, count, resolution=(resolution, resolution), split="train",
+                              seed=seed + 1, up=up)
+    rng = np.random.default_rng([seed, 0xC105E])
+    crops = []
+    for i, camera in enumerate(directions):
+        near = camera.dollied(bounds.centre, distance)
+        uv, depth = near.project(bounds.points)
+        seen = (depth > 0) & (uv >= 0).all(axis=1) & (uv < resolution).all(axis=1)
+        u, v = uv[rng.choice(np.flatnonzero(seen))] if seen.any() else (resolution / 2,) * 2
+        x0 = int(np.clip(round(u - crop / 2), 0, resolution - crop))
+        y0 = int(np.clip(round(v - crop / 2), 0, resolution - crop))
+        crops.append(Camera(crop, crop, near.fx, near.fy, near.cx - x0, near.cy - y0,
+                            near.world_to_camera, f"close_{i:03d}"))
+    return crops

@@ -79,7 +79,8 @@ THROTTLE = Bounded(float, 0, exclusive=True)
 """``serve --throttle`` in kbit/s: any positive speed."""
 PATCH_LAYERS_DEFAULT = 3
 """``PatchConfig.layers``, for --help without importing the encoder; a test keeps them equal."""
-RETRAIN_DEFAULTS = {"iterations": 3000, "finish_iterations": 600, "views": 48, "resolution": 400}
+RETRAIN_DEFAULTS = {"iterations": 3000, "finish_iterations": 600, "views": 48, "resolution": 400,
+                    "close_views": 48}
 """``RetrainConfig`` defaults shown by --help (the same test keeps them equal)."""
 MAX_TURNTABLE = 64
 """Views in a turntable contact sheet (64 views of 400 pixels make a 3,200-pixel square)."""
@@ -326,6 +327,10 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
     train.add_argument("--views", type=Bounded(int, 1, 10000), default=None, metavar="N",
                        help="distillation: training views sampled around the input: %(type)s "
                        f"(default: {RETRAIN_DEFAULTS['views']})")
+    train.add_argument("--close-views", type=Bounded(int, 0, 10000), default=None, metavar="N",
+                       help="distillation: close-up views (half the distance, trained as crops) "
+                       "besides the whole-scene ones: %(type)s, 0 for none (default: "
+                       f"{RETRAIN_DEFAULTS['close_views']})")
     train.add_argument("--resolution", type=Bounded(int, 8, 8192), default=None, metavar="PIXELS",
                        help="distillation: side of the square training views: %(type)s "
                        f"(default: {RETRAIN_DEFAULTS['resolution']})")
@@ -383,7 +388,8 @@ def encode_config(args: argparse.Namespace):
     retrain = not args.no_retrain
     if not retrain:
         given = [f"--{n.replace('_', '-')}" for n in ("dataset", "iterations", "finish_iterations",
-                                                      "views", "resolution", "resume")
+                                                      "views", "close_views", "resolution",
+                                                      "resume")
                  if getattr(args, n) not in (None, False)]
         if given:
             raise UsageError(f"{', '.join(given)} only apply to retraining: drop --no-retrain or "
@@ -403,7 +409,7 @@ def encode_config(args: argparse.Namespace):
     if retrain:
         changes = {"up": args.up, "antialiased": args.antialiased, "downscale": args.downscale}
         for name in ("patch_downsample", "prune", "iterations", "finish_iterations", "views",
-                     "resolution"):
+                     "close_views", "resolution"):
             if getattr(args, name) is not None:
                 changes[name] = getattr(args, name)
         config.retrain = dataclasses.replace(config.retrain, **changes)

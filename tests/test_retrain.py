@@ -33,7 +33,8 @@ from conftest import real_file, write_transforms_dataset
 
 #: Small and fast: every test here retrains for seconds, not minutes.
 QUICK = RetrainConfig(iterations=60, finish_iterations=16, views=8, resolution=64,
-                      importance_views=8, patch_downsample=3.0)
+                      importance_views=8, patch_downsample=3.0, close_views=4,
+                      close_resolution=128, close_crop=48)
 EVAL = EvalConfig(views=4, resolution=64, device="cpu")
 
 

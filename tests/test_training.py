@@ -347,3 +347,19 @@ def test_fit_count_keeps_the_most_that_fit(fixed, per, upper):
     assert got == size(count) and got <= target * (1 + TOLERANCE)
     assert count == upper or size(count + 1) > target * (1 + TOLERANCE) or \
         abs(got - target) <= TOLERANCE * target
+
+
+def test_close_up_crops_train_but_never_rank(cloud):
+    """Distillation targets hold whole views and crops of nearer ones; blend weights rank
+    Gaussians over the whole views only (a crop sees only some of them)."""
+    from spcodec.imaging.render import RenderSettings
+    from spcodec.imaging.training.targets import distillation_targets
+    from spcodec.imaging.views import close_crops, sample_views
+
+    whole = sample_views(cloud, 3, resolution=(48, 48), split="train")
+    crops = close_crops(cloud, 2, resolution=96, crop=32)
+    targets = distillation_targets(cloud, whole, RenderSettings(), torch.device("cpu"), crops)
+    assert [v.crop for v in targets.views] == [False] * 3 + [True] * 2
+    assert targets.whole_cameras == whole
+    assert tuple(targets.views[-1].image.shape) == (32, 32, 3)
+    assert float(targets.views[-1].image.max()) > 0  # the crop shows the scene

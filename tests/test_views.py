@@ -256,3 +256,38 @@ def test_views_see_real_scenes(relative: str) -> None:
     gaps = np.linalg.norm(_positions([v.camera for v in train])[:, None]
                           - _positions([v.camera for v in evals])[None], axis=2)
     assert gaps.min() > 0.02 * robust_bounds(cloud).radius
+
+
+# ------------------------------------------------------------------------------ close-up crops
+def test_close_crops_are_pieces_of_nearer_views_that_see_the_scene():
+    from spcodec.imaging.views import close_crops
+
+    cloud = _object_scene(2.0)
+    bounds = robust_bounds(cloud)
+    crops = close_crops(cloud, 6, distance=0.5, resolution=200, crop=64, seed=3)
+    again = close_crops(cloud, 6, distance=0.5, resolution=200, crop=64, seed=3)
+    assert all(np.array_equal(a.world_to_camera, b.world_to_camera) and (a.cx, a.cy) == (b.cx, b.cy)
+               for a, b in zip(crops, again))
+    whole = sample_views(cloud, 6, resolution=(200, 200), split="train", seed=4)
+    for crop, full in zip(crops, whole):
+        assert (crop.width, crop.height) == (64, 64) and crop.fx == full.fx
+        # half as far from the centre, looking the same way
+        assert np.linalg.norm(crop.position - bounds.centre) == pytest.approx(
+            0.5 * np.linalg.norm(full.position - bounds.centre))
+        assert np.allclose(crop.rotation, full.rotation)
+        # its pixels are those of the whole nearer frame, shifted, and inside it
+        offset = np.array([full.cx - crop.cx, full.cy - crop.cy])
+        assert (offset >= 0).all() and (offset + 64 <= 200).all()
+        uv, depth = crop.project(bounds.points)
+        inside = (depth > 0) & (uv >= 0).all(axis=1) & (uv < 64).all(axis=1)
+        assert inside.any()  # centred on a point of the scene
+
+
+def test_close_crops_refuse_what_cannot_be_cut():
+    from spcodec.imaging.views import close_crops
+
+    cloud = _object_scene(1.0)
+    with pytest.raises(UsageError, match="crop"):
+        close_crops(cloud, 2, resolution=100, crop=200)
+    with pytest.raises(UsageError, match="distance"):
+        close_crops(cloud, 2, distance=0.0)

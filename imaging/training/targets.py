@@ -3,7 +3,8 @@
 * **Distillation** (a PLY and nothing else): the original model is rendered at views sampled
   around it (:func:`~spcodec.imaging.views.sample_views`, split ``"train"``, which never shares a
   camera with the ``"eval"`` views that ``spcodec eval --reference`` judges by), and those renders
-  are the targets.
+  are the targets; so are crops of closer views (:func:`~spcodec.imaging.views.close_crops`),
+  where the detail a whole-scene view leaves below a pixel covers several.
 * **Dataset** (``--dataset DIR``): the dataset's training images; its test split stays held out for
   evaluation.
 
@@ -40,6 +41,8 @@ class TargetView:
     camera: Camera
     image: torch.Tensor
     mask: torch.Tensor | None = None
+    crop: bool = False
+    """A crop of a larger frame: it shows part of the scene, so it does not rank Gaussians."""
 
 
 @dataclass
@@ -55,20 +58,27 @@ class Targets:
         return [v.camera for v in self.views]
 
     @property
+    def whole_cameras(self) -> list[Camera]:
+        """The cameras of the views that show their whole frame (not crops): what blend weights
+        rank Gaussians over, since a crop sees only some of them."""
+        return [v.camera for v in self.views if not v.crop] or self.cameras
+
+    @property
     def extent(self) -> float:
         """The spatial scale of position learning rates (see :func:`camera_extent`)."""
         return camera_extent(np.stack([c.position for c in self.cameras]))
 
 
 def distillation_targets(original: GaussianCloud, cameras: list[Camera], settings: RenderSettings,
-                         device: torch.device) -> Targets:
-    """Renders of ``original`` at ``cameras`` (sampled "train" views) as targets."""
+                         device: torch.device, crops: list[Camera] = ()) -> Targets:
+    """Renders of ``original`` at ``cameras`` (sampled "train" views) and at ``crops`` (close-up
+    crops) as targets."""
     params = GaussianParams.from_cloud(original, device)
     views = []
     with torch.no_grad():
-        for camera in cameras:
+        for camera, crop in [(c, False) for c in cameras] + [(c, True) for c in crops]:
             image = render(params, camera, settings).image.clamp(0.0, 1.0)
-            views.append(TargetView(camera, image.to(torch.float32)))
+            views.append(TargetView(camera, image.to(torch.float32), crop=crop))
     return Targets(views, settings.background, "distillation")
 
 

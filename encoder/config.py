@@ -413,6 +413,10 @@ class EncoderConfig:
     #: Rate control: aim the file at this many bytes (within 5 %) by choosing how many patch
     #: Gaussians survive pruning (None: the size follows from the settings).
     target_size: int | None = None
+    #: Quality control: the smallest file whose close-up PSNR (``spcodec eval``'s views at half
+    #: their distance) reaches this many dB, again by choosing how many patch Gaussians survive
+    #: (encoder/qualitycontrol.py; None: off). Exclusive with ``target_size``.
+    target_psnr: float | None = None
     #: The sketch layer, a streaming viewer's first picture, ends within this share of the file:
     #: when it would not, the sketch clusters of least importance per Gaussian go to the patch
     #: (None: no limit). With retraining the share is judged before training, on the file the

@@ -62,7 +62,8 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
     With ``config.retrain`` set, the patch is pruned and retrained against ``dataset``'s training
     images (a folder the dataset loaders read) or, without one, against renders of ``cloud``
     itself (distillation); ``control`` carries the device, checkpoints and the stop request.
-    ``config.target_size`` turns on rate control (:mod:`.ratecontrol`).
+    ``config.target_size`` turns on rate control (:mod:`.ratecontrol`), ``config.target_psnr``
+    quality control (:mod:`.qualitycontrol`).
     """
     config = (config or EncoderConfig()).seeded()
     validate_input(cloud)
@@ -74,7 +75,10 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
         raise UsageError(f"unknown codec {config.codec!r}: use zlib or zstd") from None
     times: dict[str, float] = {}
     prepared = None
-    if config.retrain is not None or config.target_size is not None:
+    if config.target_size is not None and config.target_psnr is not None:
+        raise UsageError("give one target: a size or a PSNR")
+    if config.retrain is not None or config.target_size is not None or \
+            config.target_psnr is not None:
         control = control or RunControl()
         control.check_checkpoint()
         prepared = prepare_targets(cloud, config, dataset, control, progress, times)
@@ -132,10 +136,10 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
         "seconds": times, **extra,
     }
     stats["sketch_error"] = sketch_error(data, cloud, source, stats["sketch_gaussians"])
-    if config.retrain is not None:
+    if config.retrain is not None or config.target_psnr is not None:
         t = time.perf_counter()
         stage = progress("evaluate", None)
-        stats["quality"] = judge(data, cloud, config.retrain, dataset, control)
+        stats["quality"] = judge(data, cloud, config.retrain or RetrainConfig(), dataset, control)
         quality = stats["quality"]
         closer = "".join(f", {c['psnr']:.2f} dB at {c['distance']:g} of the distance"
                          for c in quality["closeups"])

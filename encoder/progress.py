@@ -107,6 +107,17 @@ def print_summary(stats: dict) -> None:
               + (", corrected once after the finish" if rate.get("corrected") else ""))
         if rate.get("note"):
             print(f"  note: {rate['note']}")
+    aim = stats.get("quality_target")
+    if aim:
+        line = (f"  target {aim['target_psnr']:g} dB close up: {aim['count_without_retraining']:,} "
+                f"patch Gaussians reach {aim['psnr_without_retraining']:.2f} dB without "
+                "retraining")
+        if "count_retrained" in aim:
+            line += (f"; retrained, {aim['count_retrained']:,} reach "
+                     f"{aim['psnr_retrained']:.2f} dB before the finish")
+            if not aim["reached"]:
+                line += " (short of the target even with all of them: the best this encode makes)"
+        print(line)
     retrain = stats.get("retrain")
     if retrain:
         print(f"  retrain ({retrain['prune']} pruning) on the training views: "

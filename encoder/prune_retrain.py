@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from spcodec.cloud import GaussianCloud
+from spcodec.decoder import decode_layers
 from spcodec.imaging.importance import blend_weights
 from spcodec.imaging.render import RenderSettings, resolve_device
 from spcodec.imaging.training.checkpoint import Checkpointer, fingerprint
@@ -26,6 +27,7 @@ from spcodec.imaging.training.targets import Targets, check_targets, dataset_tar
 from .config import EncoderConfig, RetrainConfig
 from .patch import PatchEncoder, PatchEncoding, Quantized
 from .prune import kept_count, prune_by_importance, select
+from .qualitycontrol import CloseupJudge, check_reachable, fewest_reaching
 from .ratecontrol import SNAP_MARGIN, TRAIN_MARGIN, RatePlan, fit_count, plan_count, within
 from .retrain import RetrainStage, RunControl, spread
 from .stages import ProgressFactory, SceneWriter, SketchOutcome
@@ -90,7 +92,7 @@ def factor_trial(sketch: SketchOutcome, patch: GaussianCloud, writer: SceneWrite
     """The file with the patch pruned by the retrain config's factor and coded without
     retraining (None with a target size or without retraining): the retrained file's layout to
     within the gains of training, cheap enough to size the sketch layer's share before training."""
-    if config.retrain is None or config.target_size is not None:
+    if config.retrain is None or config.target_size is not None or config.target_psnr is not None:
         return None
     return _pruned_file(writer, PatchEncoder(config.patch, seed=config.seed), patch,
                         weights[sketch.patch_idx],
@@ -112,8 +114,22 @@ def encode_pruned_patch(cloud: GaussianCloud, sketch: SketchOutcome, patch: Gaus
 
     t = time.perf_counter()
     stage = progress("prune", None)
-    plan = None
-    if config.target_size is not None:
+    plan, judge = None, None
+    if config.target_psnr is not None:
+        view = retrain or _NO_RETRAIN
+        judge = CloseupJudge(cloud, up=view.up, antialiased=view.antialiased,
+                             device=control.device)
+        reach = fewest_reaching(config.target_psnr, len(patch),
+                                _judged_trial(writer, encoder, patch, weights, judge))
+        check_reachable(config.target_psnr, reach, retrain is not None)
+        short = [c for c, p in reach.judged.items() if p < config.target_psnr]
+        stats["quality_target"] = {
+            "target_psnr": config.target_psnr, "patch_gaussians": len(patch),
+            "count_without_retraining": reach.count,
+            "psnr_without_retraining": round(reach.psnr, 3),
+            "largest_count_short": max(short, default=0), "judgements": len(reach.judged)}
+        keep = reach.count
+    elif config.target_size is not None:
         plan = plan_count(config.target_size, len(patch), _trial(writer, encoder, patch, weights))
         stats["rate"] = {"target_bytes": config.target_size, "predicted_bytes":
                          plan.predicted_bytes, "fixed_bytes": plan.fixed_bytes,
@@ -141,13 +157,14 @@ def encode_pruned_patch(cloud: GaussianCloud, sketch: SketchOutcome, patch: Gaus
     if control.checkpoint is not None:
         checkpointer = Checkpointer(Path(control.checkpoint), fingerprint(
             cloud, config.to_json(), "" if dataset is None else str(Path(dataset).resolve())))
-    return _retrain(retrain, targets, writer, encoder, patch, kept, plan, config, control,
+    return _retrain(retrain, targets, writer, encoder, patch, kept, plan, judge, config, control,
                     checkpointer, progress, times, stats)
 
 
 def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
              encoder: PatchEncoder, patch: GaussianCloud, kept: np.ndarray,
-             plan: RatePlan | None, config: EncoderConfig, control: RunControl,
+             plan: RatePlan | None, judge: CloseupJudge | None, config: EncoderConfig,
+             control: RunControl,
              checkpointer: Checkpointer | None, progress: ProgressFactory,
              times: dict[str, float], stats: dict) -> PatchChoice:
     stage = RetrainStage(retrain, targets, writer.decoded_sketch(), encoder, config.seed,
@@ -173,6 +190,13 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
         count, _ = fit_count(config.target_size, len(trained),
                              _sized(writer, encoder, trained, quantized, importance))
         top = prune_by_importance(importance, count)
+        trained, quantized, kept = trained.subset(top), quantized.subset(top), kept[top]
+    if judge is not None:  # the fewest trained Gaussians that still reach the target
+        fit = fewest_reaching(config.target_psnr, len(trained), _judged_quantized(
+            writer, encoder, trained, quantized, importance, judge))
+        stats["quality_target"].update(count_retrained=fit.count, psnr_retrained=round(fit.psnr, 3),
+                                reached=fit.reached)
+        top = prune_by_importance(importance, fit.count)
         trained, quantized, kept = trained.subset(top), quantized.subset(top), kept[top]
     report.done(f"{len(kept)} Gaussians, codebooks of {encoder.config.codebook_size} entries")
     times["quantize"] = time.perf_counter() - t
@@ -232,6 +256,25 @@ def _pruned_file(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianClou
         return writer.write(None)
     top = prune_by_importance(weights, count)
     return writer.write(encoder.encode(patch.subset(top), importance=weights[top]))
+
+
+def _judged_trial(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
+                  weights: np.ndarray, judge: CloseupJudge):
+    """count -> close-up PSNR of the file with the ``count`` most important patch Gaussians,
+    coded without retraining (quality control's first search)."""
+    return lambda count: judge(decode_layers(
+        _pruned_file(writer, encoder, patch, weights, count)).cloud)
+
+
+def _judged_quantized(writer: SceneWriter, encoder: PatchEncoder, trained: GaussianCloud,
+                      quantized: Quantized, importance: np.ndarray, judge: CloseupJudge):
+    """count -> close-up PSNR of the file with the ``count`` most important quantized Gaussians."""
+    def judged(count: int) -> float:
+        top = prune_by_importance(importance, count)
+        data = writer.write(encoder.layer(trained.subset(top), quantized.subset(top),
+                                          importance[top]))
+        return judge(decode_layers(data).cloud)
+    return judged
 
 
 def _row_fit(target: int, writer: SceneWriter, encoder: PatchEncoder):

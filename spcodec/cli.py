@@ -301,6 +301,10 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
                       help="aim the file at SIZE bytes, within 5%%: 150k, 2MB, 300000 (k, M "
                       "decimal; KiB, MiB binary); sets how many patch Gaussians survive pruning "
                       "(default: none, the preset's downsample)")
+    size.add_argument("--target-psnr", type=Bounded(float, 10, 100), metavar="DB",
+                      help="the smallest file whose close-up (eval's views at half the distance, "
+                      "800x800) reaches DB against the input: %(type)s; sets how many patch "
+                      "Gaussians survive (default: none)")
     size.add_argument("--patch-downsample", type=Bounded(float, 1), metavar="N",
                       help="keep 1/N of the patch Gaussians: %(type)s (default: set by --preset: "
                       "lowrate 8, balanced 4, highrate 2)")
@@ -394,14 +398,18 @@ def encode_config(args: argparse.Namespace):
         if given:
             raise UsageError(f"{', '.join(given)} only apply to retraining: drop --no-retrain or "
                              "them")
-    if args.target_size is not None and args.patch_downsample is not None:
-        raise UsageError("--target-size chooses the downsample itself: give one of "
-                         "--target-size and --patch-downsample")
+    targets = [f"--{n.replace('_', '-')}" for n in ("target_size", "target_psnr",
+                                                        "patch_downsample")
+               if getattr(args, n) is not None]
+    if len(targets) > 1:
+        raise UsageError(f"{' and '.join(targets)} each choose how many patch Gaussians survive: "
+                         "give one of them")
     config = preset_config(args.preset, EncoderConfig(
         seed=args.seed, n_jobs=args.jobs, use_sketch=not args.no_sketch, codec=args.codec,
         gzip=args.gzip), retrain=retrain)
     if args.target_size is not None:
         config.target_size = parse_size(args.target_size)
+    config.target_psnr = args.target_psnr
     if args.patch_layers is not None:
         config.patch = dataclasses.replace(config.patch, layers=args.patch_layers)
     if args.tau_max is not None:

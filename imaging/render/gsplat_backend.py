@@ -21,7 +21,7 @@ import torch
 
 from ..cameras import Camera
 from .params import GaussianParams
-from .settings import BLUR_VARIANCE, RenderResult, RenderSettings, retain_means2d_grad
+from .settings import RenderResult, RenderSettings, retain_means2d_grad
 
 GSPLAT_MAX_ALPHA = 0.999
 """The alpha clamp hard-coded in gsplat's CUDA rasterizer."""
@@ -81,7 +81,7 @@ def gsplat_arguments(params: GaussianParams, camera: Camera, settings: RenderSet
         width=camera.width,
         height=camera.height,
         near_plane=settings.near_plane,
-        eps2d=BLUR_VARIANCE,
+        eps2d=settings.blur_variance,
         sh_degree=degree,
         packed=False,
         backgrounds=torch.tensor([settings.background], dtype=dtype, device=device),

@@ -10,8 +10,8 @@ Conventions (INRIA 3DGS / gsplat 1.5, checked against their sources):
   ``x/z`` and ``y/z`` are clamped to the image's half-extent plus 30 % of the half-FOV tangent
   (gsplat's form, equal to INRIA's ``1.3 * tan(fov/2)`` for a centred principal point), and the
   clamp also stops the gradient as in both references;
-* ``BLUR_VARIANCE`` px^2 added to the 2D covariance; in antialiased mode the opacity is multiplied
-  by ``sqrt(det(cov) / det(cov + blur I))`` (Mip-Splatting);
+* ``settings.blur_variance`` px^2 (default 0.3) added to the 2D covariance; in antialiased mode
+  the opacity is multiplied by ``sqrt(det(cov) / det(cov + blur I))`` (Mip-Splatting);
 * a Gaussian reaches the pixels whose centres lie in the box that bounds its ellipse
   ``opacity * exp(-q / 2) >= 1/255`` (gsplat 1.5's opacity-aware extent). Outside that box no pixel
   passes the 1/255 test, so the box only culls and never changes a pixel: the image equals the
@@ -30,7 +30,7 @@ import torch
 
 from ..cameras import Camera
 from .params import GaussianParams
-from .settings import ALPHA_THRESHOLD, BLUR_VARIANCE, RenderSettings
+from .settings import ALPHA_THRESHOLD, RenderSettings
 from .sh import sh_to_rgb
 
 _BOX_MARGIN = 0.01
@@ -130,7 +130,7 @@ def project(params: GaussianParams, camera: Camera, settings: RenderSettings) ->
     mean2d, cov2d_raw = _ewa_project(front(means_cam), front(params.quats),
                                      front(params.scales), cam)
     a_raw, b, c_raw = cov2d_raw.unbind(1)
-    a, c = a_raw + BLUR_VARIANCE, c_raw + BLUR_VARIANCE
+    a, c = a_raw + settings.blur_variance, c_raw + settings.blur_variance
     det = a * c - b * b
     opacity = torch.sigmoid(front(params.opacities))
     if settings.antialiased:

@@ -35,6 +35,10 @@ class RenderSettings:
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     antialiased: bool = False
     """Mip-Splatting / gsplat ``rasterize_mode="antialiased"`` opacity compensation."""
+    blur_variance: float = BLUR_VARIANCE
+    """The screen-space low-pass in px^2 (INRIA and gsplat: 0.3). Viewers differ: PlayCanvas adds
+    0.3 in half-pixel units, i.e. 0.075 px^2 (docs/RESULTS.md, section 13); this lets the
+    renderers be compared like for like."""
     near_plane: float = NEAR_PLANE
     sh_degree: int | None = None
     """Render with at most this SH degree (None: the scene's own degree)."""
@@ -59,6 +63,8 @@ class RenderSettings:
             raise ValueError("near_plane must be positive")
         if self.sh_degree is not None and not 0 <= self.sh_degree <= 3:
             raise ValueError("sh_degree must be None or 0..3")
+        if not self.blur_variance >= 0:
+            raise ValueError("blur_variance must be >= 0")
 
 
 @dataclass

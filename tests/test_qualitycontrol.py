@@ -1,0 +1,110 @@
+"""--target-psnr: the smallest file whose close-up reaches the target, or a one-line refusal."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+import spcodec
+from spcodec.cli import main
+from spcodec.encoder.config import EncoderConfig, RetrainConfig
+from spcodec.encoder.pipeline import encode
+from spcodec.encoder.qualitycontrol import (
+    COUNT_TOLERANCE,
+    CloseupJudge,
+    check_reachable,
+    fewest_reaching,
+)
+from spcodec.errors import UsageError
+from spcodec.imaging.evaluate import EvalConfig, evaluate_against_reference
+from spcodec.synthetic import make_scene
+
+pytestmark = pytest.mark.usefixtures("single_torch_thread")
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return make_scene(5, curves=4, per_curve=150, blobs=900, sh_degree=1).cloud
+
+
+@given(st.integers(10, 5000), st.floats(0.05, 0.95), st.floats(20, 50))
+def test_fewest_reaching_finds_the_threshold_count(upper, share, slope):
+    """A quality that rises with the count crosses the target at some count; the search returns
+    a count that reaches it, within the tolerance of the crossing."""
+    crossing = max(1, int(share * upper))
+
+    def psnr_of(count: int) -> float:
+        return 30.0 + slope * (count - crossing) / upper
+
+    plan = fewest_reaching(30.0, upper, psnr_of)
+    assert plan.reached and psnr_of(plan.count) >= 30.0 and plan.psnr == psnr_of(plan.count)
+    assert plan.count - crossing <= max(1, COUNT_TOLERANCE * upper)
+    assert len(plan.judged) <= 2 + int(np.ceil(np.log2(1 / COUNT_TOLERANCE)))
+
+
+def test_a_target_beyond_every_count_is_refused_with_the_best_reachable():
+    plan = fewest_reaching(45.0, 100, lambda count: 30.0 + count / 10)
+    assert not plan.reached and plan.count == 100 and plan.psnr == 40.0
+    with pytest.raises(UsageError, match=r"out of reach.*reaches 40.00 dB") as err:
+        check_reachable(45.0, plan, retraining=False)
+    assert "\n" not in str(err.value)
+    check_reachable(40.5, plan, retraining=True)  # retraining may still get there: try it
+    with pytest.raises(UsageError, match="about 41.0 dB after"):
+        check_reachable(42.0, plan, retraining=True)
+
+
+def _closeup_psnr(data: bytes, scene) -> float:
+    report = evaluate_against_reference(spcodec.decode(data), scene, EvalConfig(
+        device="cpu", closeups=(0.5,)))
+    return report.framing(0.5).psnr
+
+
+def test_without_retraining_the_file_is_the_smallest_that_reaches_the_target(scene):
+    full = encode(scene, EncoderConfig(seed=3))
+    target = _closeup_psnr(full.data, scene) - 4.0
+    result = encode(scene, EncoderConfig(seed=3, target_psnr=target))
+    reached = _closeup_psnr(result.data, scene)
+    assert reached >= target and len(result.data) < len(full.data)
+    aim = result.stats["quality_target"]
+    assert aim["psnr_without_retraining"] == pytest.approx(reached, abs=0.01)
+    assert result.stats["quality"]["closeups"][0]["psnr"] == pytest.approx(reached, abs=0.01)
+    # what the search judged: every count below the one chosen fell short of the target
+    assert CloseupJudge(scene, device="cpu")(spcodec.decode(result.data)) == pytest.approx(
+        reached, abs=0.01)
+    assert aim["largest_count_short"] >= aim["count_without_retraining"] - max(
+        1, COUNT_TOLERANCE * aim["patch_gaussians"])
+
+
+def test_retrained_files_reach_the_target_with_fewer_gaussians(scene):
+    quick = RetrainConfig(iterations=60, finish_iterations=16, views=8, resolution=64,
+                          importance_views=8, close_views=4, close_resolution=128, close_crop=48)
+    full = encode(scene, EncoderConfig(seed=3))
+    target = _closeup_psnr(full.data, scene) - 4.0
+    result = encode(scene, EncoderConfig(seed=3, target_psnr=target, retrain=quick,
+                                         max_sketch_share=None))
+    aim = result.stats["quality_target"]
+    assert aim["reached"] and aim["count_retrained"] <= aim["count_without_retraining"]
+    assert _closeup_psnr(result.data, scene) >= target - 0.1  # the finish may move it a little
+
+
+def test_target_psnr_errors_are_one_line_and_write_nothing(tmp_path, capsys, scene):
+    ply, out = tmp_path / "s.ply", tmp_path / "s.spc"
+    spcodec.write_ply(ply, scene)
+    for argv, message in [
+        (["--target-psnr", "5"], "--target-psnr: must be a number in 10..100"),
+        (["--target-psnr", "40", "--target-size", "20k"], "give one of them"),
+        (["--target-psnr", "99", "--no-retrain"], "out of reach"),
+    ]:
+        code = main(["encode", str(ply), "-o", str(out), "--quiet", *argv])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code != 0 and len(err) == 1 and message in err[0], err
+        assert not out.exists()
+
+
+def test_a_config_with_both_targets_is_refused(scene):
+    with pytest.raises(UsageError, match="one target"):
+        encode(scene, dataclasses.replace(EncoderConfig(), target_size=10_000, target_psnr=30.0))

@@ -47,6 +47,13 @@ def ours(cloud, cameras, blur: float, antialiased: bool) -> list[np.ndarray]:
     return [np.round(render_image(params, c, settings) * 255) / 255 for c in cameras]
 
 
+def finite(cloud):
+    """``cloud`` with infinite opacity logits (an opacity of exactly 0 or 1, as SPZ round trips
+    write) replaced by +-20, which renders the same; our renderer refuses non-finite input."""
+    cloud.opacities = np.nan_to_num(cloud.opacities, posinf=20.0, neginf=-20.0)
+    return cloud
+
+
 def mean_psnr(a: list[np.ndarray], b: list[np.ndarray]) -> float:
     return float(np.mean([psnr(x, y) for x, y in zip(a, b)]))
 
@@ -74,7 +81,7 @@ def main() -> None:
         for name in refs for blur in BLURS}}]
     for spec in args.models:
         label, path = spec.split("=", 1)
-        cloud = spcodec.read_ply(path)
+        cloud = finite(spcodec.read_ply(path))
         row = {"model": label}
         with tempfile.TemporaryDirectory() as tmp:
             for name, folder in refs.items():

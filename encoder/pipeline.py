@@ -77,10 +77,12 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
     prepared = None
     if config.target_size is not None and config.target_psnr is not None:
         raise UsageError("give one target: a size or a PSNR")
-    if config.retrain is not None or config.target_size is not None or \
-            config.target_psnr is not None:
+    pruned = config.retrain is not None or config.target_size is not None or \
+        config.target_psnr is not None
+    if pruned:
         control = control or RunControl()
         control.check_checkpoint()
+    if config.retrain is not None:  # only training needs targets (rendering them takes minutes)
         prepared = prepare_targets(cloud, config, dataset, control, progress, times)
     refined, found = refine_sketch(cloud, config, progress, times)
     sketch = encode_sketch(cloud, refined, found, config, progress, times)
@@ -89,13 +91,14 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
     writer = SceneWriter(cloud.sh_degree, sketch.clusters, metadata,
                          WriteOptions(codec=codec, gzip=config.gzip))
     extra: dict = {}
+    patch_encoder = PatchEncoder(config.patch, seed=config.seed)
     if prepared is None:
-        patch_encoder = PatchEncoder(config.patch, seed=config.seed)
         t = time.perf_counter()
         stage = progress("importance", None)
         importance = patch_encoder.measure_importance(cloud)  # whole scene: the sketch occludes
         stage.done(_importance_summary(config.patch))
         times["importance"] = time.perf_counter() - t
+    if not pruned:
         last: dict = {}
 
         def encoded(part: SketchOutcome, part_writer: SceneWriter) -> bytes:
@@ -111,7 +114,7 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
         patch, data = last["patch"], last["data"]
         rows = np.arange(len(sketch.patch_idx))
     else:
-        weights = scene_weights(cloud, config, prepared)
+        weights = importance if prepared is None else scene_weights(cloud, config, prepared)
         # the share is judged on the file the prune factor makes before training, whose layout
         # the retrained file keeps (same count, same codebook settings)
         sketch, writer = _cap_sketch(

@@ -7,8 +7,10 @@ the same figures, so a long run is never silent.
 
 from __future__ import annotations
 
+import functools
 import sys
 import time
+from typing import TextIO
 
 from .stages import Stage
 
@@ -75,38 +77,43 @@ class StageReporter:
     def stage(self, name: str, total: int | None) -> Stage:
         self.count += 1
         return _PrintedStage(name, total, self.count, self.enabled)
-def print_summary(stats: dict) -> None:
-    """The human summary of an encode: counts, bytes per section, ratios, sketch errors."""
+def print_summary(stats: dict, stream: TextIO | None = None) -> None:
+    """The human summary of an encode: counts, bytes per section, ratios, sketch errors (to
+    ``stream``, standard output by default). Bits per Gaussian count the Gaussians the file
+    stores, not those pruning dropped."""
+    print_ = functools.partial(print, file=stream or sys.stdout)
     n, size = stats["gaussians"], stats["bytes"]
+    stored = stats["sketch_gaussians"] + stats["patch_gaussians"]
     sk = stats["sketch"]
-    print(f"{stats.get('output', 'output')}: {size:,} bytes for {n:,} Gaussians "
-          f"({8 * size / n:.1f} bits per Gaussian)")
+    pruned = f"; {n:,} in the input" if stored != n else ""
+    print_(f"{stats.get('output', 'output')}: {size:,} bytes for {stored:,} Gaussians "
+           f"({8 * size / max(stored, 1):.1f} bits per Gaussian{pruned})")
     if "input_bytes" in stats:
-        print(f"  ratio vs input PLY: {stats['input_bytes'] / size:.1f}x "
+        print_(f"  ratio vs input PLY: {stats['input_bytes'] / size:.1f}x "
               f"({stats['input_bytes']:,} bytes)")
-    print(f"  sketch: {stats['sketch_gaussians']:,} Gaussians in "
+    print_(f"  sketch: {stats['sketch_gaussians']:,} Gaussians in "
           f"{sk.get('clusters_encoded', 0)} clusters; patch: {stats['patch_gaussians']:,} "
           f"Gaussians in {stats['patch_layers']} layers")
     for name, length in stats["sections"].items():
         if length:
-            print(f"  {name:<20} {length:>12,} bytes")
+            print_(f"  {name:<20} {length:>12,} bytes")
     err = stats.get("sketch_error")
     if err:
-        print("  decoded sketch vs original (mean / p95):")
+        print_("  decoded sketch vs original (mean / p95):")
         labels = {"position_rel_diameter": ("position, % of diameter", 100.0),
                   "log_scale_abs": ("log scale", 1.0), "rotation_deg": ("rotation, degrees", 1.0),
                   "opacity_abs": ("opacity", 1.0), "color_dc_abs": ("colour (RGB)", 1.0)}
         for key, (label, factor) in labels.items():
             v = err[key]
-            print(f"    {label:<24} {v['mean'] * factor:.4g} / {v['p95'] * factor:.4g}")
+            print_(f"    {label:<24} {v['mean'] * factor:.4g} / {v['p95'] * factor:.4g}")
     rate = stats.get("rate")
     if rate:
         actual = stats["bytes"]
-        print(f"  target {rate['target_bytes']:,} bytes: predicted {rate['predicted_bytes']:,}, "
+        print_(f"  target {rate['target_bytes']:,} bytes: predicted {rate['predicted_bytes']:,}, "
               f"actual {actual:,} ({100 * (actual / rate['target_bytes'] - 1):+.1f} %)"
               + (", corrected once after the finish" if rate.get("corrected") else ""))
         if rate.get("note"):
-            print(f"  note: {rate['note']}")
+            print_(f"  note: {rate['note']}")
     aim = stats.get("quality_target")
     if aim:
         line = (f"  target {aim['target_psnr']:g} dB close up: {aim['count_without_retraining']:,} "
@@ -117,10 +124,10 @@ def print_summary(stats: dict) -> None:
                      f"{aim['psnr_retrained']:.2f} dB before the finish")
             if not aim["reached"]:
                 line += " (short of the target even with all of them: the best this encode makes)"
-        print(line)
+        print_(line)
     retrain = stats.get("retrain")
     if retrain:
-        print(f"  retrain ({retrain['prune']} pruning) on the training views: "
+        print_(f"  retrain ({retrain['prune']} pruning) on the training views: "
               f"{retrain['psnr_before']:.2f} dB before, {retrain['psnr_retrained']:.2f} dB "
               f"retrained"
               + (f" ({retrain['psnr_snapped']:.2f} dB through its codebooks)"
@@ -130,12 +137,12 @@ def print_summary(stats: dict) -> None:
                  if "psnr_finished" in retrain else ""))
     quality = stats.get("quality")
     if quality:
-        print(f"  quality: PSNR {quality['psnr']:.2f} dB, SSIM {quality['ssim']:.4f} against "
+        print_(f"  quality: PSNR {quality['psnr']:.2f} dB, SSIM {quality['ssim']:.4f} against "
               f"{quality['against']} ({quality['views']} views of {quality['width']}x"
               f"{quality['height']}; `spcodec eval` reports the same)")
         for close in quality.get("closeups", []):
-            print(f"    closer, at {close['distance']:g} of the distance: PSNR {close['psnr']:.2f} "
+            print_(f"    closer, at {close['distance']:g} of the distance: PSNR {close['psnr']:.2f} "
                   f"dB, SSIM {close['ssim']:.4f} ({close['width']}x{close['height']})")
     total = sum(stats["seconds"].values())
-    print("  time: " + ", ".join(f"{k} {v:.1f} s" for k, v in stats["seconds"].items())
+    print_("  time: " + ", ".join(f"{k} {v:.1f} s" for k, v in stats["seconds"].items())
           + f" (total {total:.1f} s)")

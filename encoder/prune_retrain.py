@@ -101,15 +101,15 @@ def factor_trial(sketch: SketchOutcome, patch: GaussianCloud, writer: SceneWrite
 
 def encode_pruned_patch(cloud: GaussianCloud, sketch: SketchOutcome, patch: GaussianCloud,
                         writer: SceneWriter, config: EncoderConfig,
-                        prepared: PreparedTargets, weights: np.ndarray,
+                        prepared: PreparedTargets | None, weights: np.ndarray,
                         dataset: str | Path | None, control: RunControl,
                         progress: ProgressFactory, times: dict[str, float]) -> PatchChoice:
     """Prune (and retrain, when ``config.retrain`` is set) the patch, sized by the config.
-    ``weights`` are :func:`scene_weights` of the whole scene."""
+    ``weights`` rank the whole scene's Gaussians (:func:`scene_weights` when retraining, the
+    patch encoder's importance without); ``prepared`` holds the targets (retraining only)."""
     retrain = config.retrain
     encoder = PatchEncoder(config.patch, seed=config.seed)
-    targets = prepared.targets
-    stats: dict = {"psnr_input": prepared.psnr_input}
+    stats: dict = {} if prepared is None else {"psnr_input": prepared.psnr_input}
     weights = weights[sketch.patch_idx]
 
     t = time.perf_counter()
@@ -157,8 +157,8 @@ def encode_pruned_patch(cloud: GaussianCloud, sketch: SketchOutcome, patch: Gaus
     if control.checkpoint is not None:
         checkpointer = Checkpointer(Path(control.checkpoint), fingerprint(
             cloud, config.to_json(), "" if dataset is None else str(Path(dataset).resolve())))
-    return _retrain(retrain, targets, writer, encoder, patch, kept, plan, judge, config, control,
-                    checkpointer, progress, times, stats)
+    return _retrain(retrain, prepared.targets, writer, encoder, patch, kept, plan, judge, config,
+                    control, checkpointer, progress, times, stats)
 
 
 def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,

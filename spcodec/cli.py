@@ -25,6 +25,8 @@ from .errors import FormatError, Interrupted, SpcodecError, TruncatedError, Usag
 from .limits import DEFAULT_LIMITS
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE = 0, 1, 2
+EXIT_BROKEN_PIPE = 141
+"""What a shell reports for a program ended by SIGPIPE (128 + 13), as `cat big | head` does."""
 
 Handler = Callable[[argparse.Namespace], int]
 Configure = Callable[[argparse.ArgumentParser], None]
@@ -98,8 +100,9 @@ def command(name: str, help_text: str, configure: Configure):
 def _add_decode(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", help="an .spc file (gzip-wrapped or not), or a prefix of one")
     p.add_argument("-o", "--output", required=True,
-                   help="the file to write: a 3DGS PLY (INRIA layout), or with a .glb name a "
-                   "binary glTF with KHR_gaussian_splatting")
+                   help="the file to write: a 3DGS PLY (INRIA layout; a .ply name, a device or "
+                   "- for standard output), or with a .glb name a binary glTF with "
+                   "KHR_gaussian_splatting")
     p.add_argument("--max-layer", type=MAX_LAYER, default=None, metavar="K",
                    help="decode layers 0..K only (0 = the sketch layer alone); %(type)s "
                    "(default: every layer)")
@@ -108,14 +111,18 @@ def _add_decode(p: argparse.ArgumentParser) -> None:
 @command("decode", "decode an .spc file into a 3DGS PLY or a glTF (.glb)", _add_decode)
 def cmd_decode(args: argparse.Namespace) -> int:
     from .decoder import decode_layers
-    from .fileio import check_writable
+    from .fileio import check_writable, is_stdout, refuse_same_file
     from .gltf import write_glb
     from .ply import write_ply
 
-    suffix = Path(args.output).suffix.lower()
+    suffix = "" if is_stdout(args.output) else Path(args.output).suffix.lower()
     if suffix == ".gltf":
         raise UsageError(f"cannot write {args.output}: name it .glb (binary glTF); text .gltf with "
                          "a separate buffer is not supported")
+    if suffix not in ("", ".ply", ".glb"):
+        raise UsageError(f"cannot write {args.output}: decode writes a 3DGS PLY (.ply, or - for "
+                         f"standard output) or a binary glTF (.glb), not {suffix}")
+    refuse_same_file(args.output, args.input)
     check_writable(args.output)
     start = time.perf_counter()
     result = decode_layers(args.input, max_layer=args.max_layer)
@@ -123,7 +130,9 @@ def cmd_decode(args: argparse.Namespace) -> int:
     cloud = result.cloud
     (write_glb if suffix == ".glb" else write_ply)(args.output, cloud)
     counts = ", ".join(f"L{layer.index} {len(layer.cloud)}" for layer in result.layers)
-    print(f"decoded {len(cloud)} Gaussians ({counts}) in {elapsed * 1000:.0f} ms -> {args.output}")
+    print(f"decoded {len(cloud)} Gaussians ({counts}) in {elapsed * 1000:.0f} ms -> "
+          f"{'standard output' if is_stdout(args.output) else args.output}",
+          file=report_stream(args.output))
     return EXIT_OK
 
 
@@ -360,11 +369,13 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
 def cmd_encode(args: argparse.Namespace) -> int:
     from .encoder.pipeline import encode
     from .encoder.progress import StageReporter, print_summary
-    from .fileio import atomic_write, check_writable
+    from .fileio import atomic_write, check_writable, refuse_same_file
     from .ply import read_ply
 
+    refuse_same_file(args.output, args.input)
     check_writable(args.output)
     if args.stats:
+        refuse_same_file(args.stats, args.input, args.output)
         check_writable(args.stats)
     config = encode_config(args)
     control = run_control(args) if config.retrain is not None else None
@@ -377,7 +388,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
     stats = dict(result.stats, input_bytes=os.path.getsize(args.input), output=str(args.output))
     if args.stats:
         atomic_write(args.stats, (json.dumps(stats, indent=2) + "\n").encode())
-    print_summary(stats)
+    print_summary(stats, report_stream(args.output))
     return EXIT_OK
 
 
@@ -650,6 +661,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         with warnings.catch_warnings():
             warnings.showwarning = _warn
             return int(args.handler(args) or EXIT_OK)
+    except BrokenPipeError:  # e.g. `spcodec info X.spc | head -3`: the reader has all it wants
+        _quiet_broken_pipe()
+        return EXIT_BROKEN_PIPE
     except KeyboardInterrupt:
         _fail("interrupted")
         return 130
@@ -698,9 +712,32 @@ def missing_extra_message(module: str) -> str:
     return f"missing Python module '{module}'"
 
 
+def report_stream(output: str):
+    """Where a command's report goes: standard error when its output is standard output (``-``,
+    or a name such as /dev/stdout for the same file), so the two never mix."""
+    from .fileio import is_stdout
+    if is_stdout(output):
+        return sys.stderr
+    try:
+        same = os.path.samestat(os.stat(output), os.fstat(sys.stdout.fileno()))
+    except (OSError, ValueError, AttributeError):  # no output yet, or stdout is no real file
+        same = False
+    return sys.stderr if same else sys.stdout
+
+
 def _fail(message: str) -> None:
     first = message.strip().splitlines()[0] if message.strip() else "failed"
     print(f"spcodec: error: {first}", file=sys.stderr)
+
+
+def _quiet_broken_pipe() -> None:
+    """After the reader of standard output went away: say nothing, and keep Python from
+    complaining about the unflushable stream at exit."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):  # no real file descriptor (a test's captured stream)
+        pass
 
 
 def _warn(message, category, filename, lineno, file=None, line=None) -> None:

@@ -2,16 +2,48 @@
 
 A failure part-way (a full disk, an exception in the producer, Ctrl-C) leaves the destination as it
 was: either absent or the previous complete file, never half written.
+
+What a user names is written, never replaced: ``-`` is standard output; an existing path that is
+not a regular file (``/dev/stdout``, ``/dev/null``, a FIFO) is opened and written through, since
+renaming over it would turn a device or pipe into a plain file; a symbolic link to a file is
+followed, and the file it points to is replaced atomically, so the link stays a link.
 """
 
 from __future__ import annotations
 
+import io
 import os
+import stat
+import sys
 import tempfile
 from pathlib import Path
 from typing import BinaryIO, Callable
 
 from .errors import UsageError
+
+STDOUT = "-"
+"""The output name that means standard output."""
+
+
+def is_stdout(path: str | os.PathLike) -> bool:
+    return str(path) == STDOUT
+
+
+def refuse_same_file(output: str | os.PathLike, *inputs: str | os.PathLike) -> None:
+    """A one-line UsageError when ``output`` is one of ``inputs`` (writing it would destroy what
+    is being read), by name or through links."""
+    if is_stdout(output):
+        return
+    for source in inputs:
+        if source is None or is_stdout(source):
+            continue
+        try:
+            same = os.path.samefile(output, source)
+        except OSError:  # the output does not exist yet (or the input does not): not the same
+            same = False
+        if same:
+            raise UsageError(f"{output} is also the input: writing it would destroy the input; "
+                             "choose another output name")
 
 
 def check_writable(path: str | os.PathLike) -> Path:
@@ -21,9 +53,14 @@ def check_writable(path: str | os.PathLike) -> Path:
     mounts or a full quota refuse new files all the same. So the folder is probed by creating (and
     removing) the kind of temporary file :func:`atomic_write` will create there.
     """
+    if is_stdout(path):
+        return Path(STDOUT)
     target = _check_target(path)
+    if _written_through(target):
+        return target
+    target = _resolved(target)
     _probe(target.parent, target.name, target)
-    return target
+    return Path(path)
 
 
 def check_writable_folder(path: str | os.PathLike) -> Path:
@@ -45,17 +82,26 @@ def check_writable_folder(path: str | os.PathLike) -> Path:
 def atomic_write(path: str | os.PathLike, data: bytes | Callable[[BinaryIO], None]) -> Path:
     """Write ``data`` (bytes, or a function that writes into a binary file) to ``path`` atomically.
 
-    Errors name ``path``, never the temporary file the user did not ask for.
+    Errors name ``path``, never the temporary file the user did not ask for. ``-``, devices and
+    pipes are written through, links followed (see the module docstring).
     """
+    if is_stdout(path):  # produced in memory first: a reader that leaves early then shows as
+        if callable(data):  # BrokenPipeError, whatever the producer writes with
+            buffer = io.BytesIO()
+            data(buffer)
+            data = buffer.getvalue()
+        _write_stream(sys.stdout.buffer, data)
+        return Path(STDOUT)
     target = _check_target(path)
-    fd, tmp = _temporary(target.parent, target.name, target)
+    if _written_through(target):
+        with open(target, "wb") as out:
+            _write_stream(out, data)
+        return target
+    asked, target = target, _resolved(target)
+    fd, tmp = _temporary(target.parent, target.name, asked)
     try:
         with os.fdopen(fd, "wb") as out:
-            if callable(data):
-                data(out)
-            else:
-                out.write(data)
-            out.flush()
+            _write_stream(out, data)
             os.fsync(out.fileno())
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual permissions
         os.replace(tmp, target)
@@ -65,9 +111,33 @@ def atomic_write(path: str | os.PathLike, data: bytes | Callable[[BinaryIO], Non
         except FileNotFoundError:
             pass
         if isinstance(exc, OSError) and exc.filename in (None, tmp):  # e.g. a full disk
-            raise OSError(exc.errno, exc.strerror or str(exc), str(target)) from exc
+            raise OSError(exc.errno, exc.strerror or str(exc), str(asked)) from exc
         raise
-    return target
+    return asked
+
+
+def _write_stream(out: BinaryIO, data: bytes | Callable[[BinaryIO], None]) -> None:
+    if callable(data):
+        data(out)
+    else:
+        out.write(data)
+    out.flush()
+
+
+def _written_through(target: Path) -> bool:
+    """An existing path that is not a regular file (after links): a device, FIFO or socket."""
+    try:
+        mode = os.stat(target).st_mode
+    except OSError:
+        return False
+    return not stat.S_ISREG(mode)
+
+
+def _resolved(target: Path) -> Path:
+    """Where a (chain of) symbolic link(s) points; ``target`` itself when it is no link."""
+    if not target.is_symlink():
+        return target
+    return Path(os.path.realpath(target))
 
 
 def _check_target(path: str | os.PathLike) -> Path:

@@ -33,11 +33,39 @@ _CHUNK_COLOR_PROPS = ["min_r", "min_g", "min_b", "max_r", "max_g", "max_b"]
 _SPLATS_PER_CHUNK = 256
 
 
+def _refuse_other_formats(path: str | os.PathLike | BinaryIO, name) -> None:
+    """Name the format of a file that is no PLY, from its first bytes, instead of letting the PLY
+    parser choke on binary data."""
+    from .container import GZIP_MAGIC, MAGIC
+
+    if hasattr(path, "read"):
+        return  # a stream: nothing to peek at without consuming it
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(8)
+        if head.startswith(GZIP_MAGIC):  # a gzip-wrapped .spc, or an SPZ of versions 1-3
+            import gzip
+            with gzip.open(path, "rb") as fh:
+                head = fh.read(8)
+    except (OSError, EOFError):
+        return  # the parser reports a missing or unreadable file itself
+    if head.startswith(MAGIC):
+        raise FormatError(f"{name}: this is an .spc file, not a PLY; decode it first with "
+                          "'spcodec decode' (or give the original PLY)", "ply-invalid")
+    kinds = {b"NGSP": "an SPZ file", b"glTF": "a binary glTF (.glb)", b"PK\x03\x04":
+             "a zip archive (SOG?)"}
+    for magic, kind in kinds.items():
+        if head.startswith(magic):
+            raise FormatError(f"{name}: this is {kind}, not a PLY; convert it to a 3DGS PLY "
+                              "first", "ply-invalid")
+
+
 def read_ply(path: str | os.PathLike | BinaryIO) -> GaussianCloud:
     """Read a 3DGS PLY (INRIA layout or PlayCanvas compressed) into a :class:`GaussianCloud`."""
     from plyfile import PlyData, PlyParseError  # plyfile is a core dependency, imported lazily
 
     name = getattr(path, "name", path)
+    _refuse_other_formats(path, name)
     try:
         ply = PlyData.read(path)
     except (PlyParseError, ValueError, EOFError, IndexError, KeyError, TypeError) as exc:
@@ -117,7 +145,9 @@ def write_ply(path: str | os.PathLike, cloud: GaussianCloud) -> None:
 
     def produce(out: BinaryIO) -> None:
         out.write(header)
-        records.tofile(out) if hasattr(out, "fileno") else out.write(records.tobytes())
+        # write() of the array's own memory: no copy, and unlike numpy's tofile() it works on
+        # pipes and in-memory streams (tofile() on a pipe can write nothing and say nothing)
+        out.write(memoryview(np.ascontiguousarray(records)).cast("B"))
 
     atomic_write(path, produce)
 

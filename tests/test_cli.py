@@ -323,3 +323,111 @@ def test_warnings_reach_the_command_line_as_one_line(capsys, monkeypatch):
                                                        handler))
     code, _, err = run(capsys, "info", "x.spc")
     assert code == 0 and err == "spcodec: warning: something is off\n"
+
+
+# ------------------------------------------------------------------- outputs are written, not replaced
+def _spcodec(*argv, **kwargs) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "spcodec.cli", *map(str, argv)],
+                          capture_output=True, **kwargs)
+
+
+def test_dash_writes_the_ply_to_standard_output_and_the_report_to_stderr(tmp_path, small_file):
+    src = tmp_path / "s.spc"
+    src.write_bytes(small_file)
+    done = _spcodec("decode", src, "-o", "-")
+    assert done.returncode == 0 and done.stdout.startswith(b"ply\n")
+    assert b"decoded" in done.stderr and b"decoded" not in done.stdout
+    import io
+    assert spcodec.read_ply(io.BytesIO(done.stdout)).equals(spcodec.decode(small_file))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.spc"]
+
+
+def test_devices_and_pipes_are_written_through_not_replaced(tmp_path, small_file):
+    """-o /dev/stdout once turned the link into a regular file (as root); a FIFO is written to."""
+    import os
+    import threading
+
+    src = tmp_path / "s.spc"
+    src.write_bytes(small_file)
+    link = tmp_path / "stdout"
+    link.symlink_to("/dev/stdout")
+    done = _spcodec("decode", src, "-o", link)
+    assert done.returncode == 0 and link.is_symlink() and done.stdout.startswith(b"ply\n")
+    assert b"decoded" in done.stderr  # the report does not go into the PLY
+    assert _spcodec("decode", src, "-o", "/dev/null").returncode == 0
+    assert Path("/dev/null").is_char_device()
+    fifo = tmp_path / "pipe.ply"
+    os.mkfifo(fifo)
+    got = {}
+    reader = threading.Thread(target=lambda: got.setdefault("bytes", fifo.read_bytes()))
+    reader.start()
+    assert _spcodec("decode", src, "-o", fifo).returncode == 0
+    reader.join(30)
+    assert got["bytes"].startswith(b"ply\n") and fifo.is_fifo()
+
+
+def test_a_link_to_a_file_stays_a_link(tmp_path, small_file):
+    src, real = tmp_path / "s.spc", tmp_path / "real.ply"
+    src.write_bytes(small_file)
+    real.write_bytes(b"old")
+    link = tmp_path / "link.ply"
+    link.symlink_to(real)
+    assert _spcodec("decode", src, "-o", link).returncode == 0
+    assert link.is_symlink() and real.read_bytes().startswith(b"ply\n")
+
+
+def test_output_equal_to_the_input_is_refused(tmp_path, capsys):
+    from spcodec.synthetic import make_scene
+
+    ply = tmp_path / "scene.ply"
+    spcodec.write_ply(ply, make_scene(1, curves=1, per_curve=40, blobs=100).cloud)
+    before = ply.read_bytes()
+    alias = tmp_path / "alias.ply"
+    alias.symlink_to(ply)
+    for output in (ply, alias):
+        code, _, err = run(capsys, "encode", str(ply), "-o", str(output), "--no-retrain")
+        assert code != 0 and "is also the input" in err and err.count("\n") == 1
+    assert ply.read_bytes() == before
+
+
+def test_decode_refuses_names_of_formats_it_does_not_write(tmp_path, capsys, small_file):
+    src = tmp_path / "s.spc"
+    src.write_bytes(small_file)
+    for name in ("x.splat", "x.spz", "y.spc"):
+        code, _, err = run(capsys, "decode", str(src), "-o", str(tmp_path / name))
+        assert code == 2 and "decode writes a 3DGS PLY" in err and not (tmp_path / name).exists()
+
+
+def test_an_spc_given_to_encode_is_named_for_what_it_is(tmp_path, capsys, small_file):
+    src = tmp_path / "s.spc"
+    src.write_bytes(small_file)
+    code, _, err = run(capsys, "encode", str(src), "-o", str(tmp_path / "o.spc"), "--no-retrain")
+    assert code != 0 and "this is an .spc file, not a PLY" in err and "'ascii' codec" not in err
+
+
+def test_a_reader_that_leaves_early_ends_the_command_quietly(tmp_path, small_file):
+    """`spcodec info X.spc | head -1` printed 'error: Broken pipe' and exited 1."""
+    src = tmp_path / "s.spc"
+    src.write_bytes(small_file)
+    cli = f"{sys.executable} -m spcodec.cli"
+    for command in (f"{cli} info {src} | head -1 >/dev/null",
+                    f"{cli} decode {src} -o - | head -c 10 >/dev/null"):
+        done = subprocess.run(["bash", "-c", command + "; echo ${PIPESTATUS[0]}"],
+                              capture_output=True, text=True)
+        assert "error" not in done.stderr and done.stdout.strip() in ("0", "141"), (command, done)
+
+
+def test_bits_per_gaussian_count_the_gaussians_the_file_stores(tmp_path, capsys):
+    from spcodec.synthetic import make_scene
+
+    ply, out = tmp_path / "scene.ply", tmp_path / "o.spc"
+    cloud = make_scene(2, curves=2, per_curve=60, blobs=600).cloud
+    spcodec.write_ply(ply, cloud)
+    full = len(cloud)
+    code, report, _ = run(capsys, "encode", str(ply), "-o", str(out), "--no-retrain",
+                          "--target-size", "8k", "--quiet")
+    stored = len(spcodec.decode(out.read_bytes()))
+    assert code == 0 and stored < full
+    size = out.stat().st_size
+    assert f"for {stored:,} Gaussians ({8 * size / stored:.1f} bits per Gaussian; {full:,} in " \
+        "the input)" in report.splitlines()[0]

@@ -68,7 +68,7 @@ def convergence(args) -> None:
 def quantize(args) -> None:
     cloud = spcodec.read_ply(args.scene)
     config = RetrainConfig(iterations=args.steps, views=24, resolution=200, finish_iterations=0)
-    settings = config.render_settings((0.0, 0.0, 0.0))
+    settings = RenderSettings()
     cameras = sample_views(cloud, config.views, resolution=(200, 200), split="train")
     targets = distillation_targets(cloud, cameras, settings, torch.device("cpu"))
     nothing = GaussianCloud.zeros(0, cloud.sh_degree)

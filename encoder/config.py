@@ -342,10 +342,6 @@ class RetrainConfig:
     #: the training split).
     downscale: int = 1
     max_views: int | None = None
-    #: Up axis of the scene for sampled views (as for ``spcodec eval``), and whether it renders
-    #: with Mip-Splatting's antialiased opacity (for models trained that way).
-    up: str = "-y"
-    antialiased: bool = False
     #: Steps of the quantization-aware finish (0: off) and when its one re-assignment happens.
     finish_iterations: int = 600
     reassign_at: float = 0.5
@@ -383,9 +379,6 @@ class RetrainConfig:
         """The retraining step at which snapping starts (None: it never does)."""
         return None if self.snap_start >= 1 else int(round(self.snap_start * self.iterations))
 
-    def render_settings(self, background: tuple[float, float, float]) -> RenderSettings:
-        return RenderSettings(background=background, antialiased=self.antialiased)
-
 
 @dataclass
 class EncoderConfig:
@@ -408,6 +401,12 @@ class EncoderConfig:
     codec: str = "zlib"
     #: Wrap the file in gzip (the paper's final step; a few percent smaller).
     gzip: bool = False
+    #: How the scene is viewed: its up axis (for sampled views, as ``spcodec eval --up``; "-y"
+    #: suits COLMAP-derived scenes, "+z" z-up ones) and whether it renders with Mip-Splatting's
+    #: antialiased opacity (models trained that way). Distillation, importance, judging and the
+    #: file's metadata (for viewers) use them.
+    up: str = "-y"
+    antialiased: bool = False
     #: Prune and retrain the patch (None: the no-retrain encoder). See :mod:`.retrain`.
     retrain: "RetrainConfig | None" = None
     #: Rate control: aim the file at this many bytes (within 5 %) by choosing how many patch
@@ -430,6 +429,10 @@ class EncoderConfig:
             categorize=dataclasses.replace(self.categorize, random_state=self.seed),
             refine=dataclasses.replace(self.refine, random_state=self.seed),
         )
+
+    def render_settings(self, background: tuple[float, float, float]) -> RenderSettings:
+        """How training and judging render this scene."""
+        return RenderSettings(background=background, antialiased=self.antialiased)
 
     def to_json(self) -> dict:
         """Plain JSON-ready settings (stored in the file's metadata)."""

@@ -25,7 +25,7 @@ from spcodec.imaging.evaluate import EvalConfig, evaluate_against_dataset, evalu
 from spcodec.writer import EncodedScene, WriteOptions
 
 from .categorize import categorize
-from .config import EncoderConfig, PatchConfig, RetrainConfig
+from .config import EncoderConfig, PatchConfig
 from .patch import PatchEncoder, PatchEncoding
 from .prune_retrain import encode_pruned_patch, factor_trial, prepare_targets, scene_weights
 from .refine import RefineResult, refine
@@ -87,7 +87,7 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
     refined, found = refine_sketch(cloud, config, progress, times)
     sketch = encode_sketch(cloud, refined, found, config, progress, times)
     metadata = {"encoder": "spcodec", "version": _version(), "source": source_name,
-                "settings": config.to_json()}
+                "up": config.up, "settings": config.to_json()}
     writer = SceneWriter(cloud.sh_degree, sketch.clusters, metadata,
                          WriteOptions(codec=codec, gzip=config.gzip))
     extra: dict = {}
@@ -142,7 +142,7 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
     if config.retrain is not None or config.target_psnr is not None:
         t = time.perf_counter()
         stage = progress("evaluate", None)
-        stats["quality"] = judge(data, cloud, config.retrain or RetrainConfig(), dataset, control)
+        stats["quality"] = judge(data, cloud, config, dataset, control)
         quality = stats["quality"]
         closer = "".join(f", {c['psnr']:.2f} dB at {c['distance']:g} of the distance"
                          for c in quality["closeups"])
@@ -152,7 +152,7 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
     return EncodeResult(data, writer.scene(patch), source, stats)
 
 
-def judge(data: bytes, original: GaussianCloud, retrain: RetrainConfig,
+def judge(data: bytes, original: GaussianCloud, config: EncoderConfig,
           dataset: str | Path | None, control: RunControl | None) -> dict:
     """Quality of the written file as ``spcodec eval`` measures it with its defaults: against the
     dataset's test images, or against renders of the original at the held-out sampled views
@@ -162,11 +162,11 @@ def judge(data: bytes, original: GaussianCloud, retrain: RetrainConfig,
     decoded = decode_layers(data).cloud
     if dataset is not None:
         report = evaluate_against_dataset(decoded, Path(dataset), EvalConfig(
-            downscale=retrain.downscale, device=device))
+            downscale=config.retrain.downscale, device=device))
         against = f"the test images of {dataset}"
     else:
         report = evaluate_against_reference(decoded, original, EvalConfig(
-            device=device, up=retrain.up, antialiased=retrain.antialiased))
+            device=device, up=config.up, antialiased=config.antialiased))
         against = "renders of the original at held-out views"
     doc = report.to_json()
     closeups = [{key: c[key] for key in ("distance", "psnr", "ssim", "width", "height")}

@@ -65,12 +65,11 @@ def prepare_targets(cloud: GaussianCloud, config: EncoderConfig, dataset: str | 
                     control: RunControl, progress: ProgressFactory,
                     times: dict[str, float]) -> PreparedTargets:
     """Load or render the targets and check that they belong to ``cloud``."""
-    view_config = config.retrain or _NO_RETRAIN
     t = time.perf_counter()
     stage = progress("targets", None)
     device = resolve_device(control.device)
-    targets = build_targets(cloud, view_config, dataset, device)
-    settings = view_config.render_settings(targets.background)
+    targets = build_targets(cloud, config, dataset, device)
+    settings = config.render_settings(targets.background)
     psnr = check_targets(cloud, targets, settings, device, dataset)
     stage.done(f"{len(targets.views)} {targets.mode} views, input at {psnr:.2f} dB")
     times["targets"] = time.perf_counter() - t
@@ -116,8 +115,7 @@ def encode_pruned_patch(cloud: GaussianCloud, sketch: SketchOutcome, patch: Gaus
     stage = progress("prune", None)
     plan, judge = None, None
     if config.target_psnr is not None:
-        view = retrain or _NO_RETRAIN
-        judge = CloseupJudge(cloud, up=view.up, antialiased=view.antialiased,
+        judge = CloseupJudge(cloud, up=config.up, antialiased=config.antialiased,
                              device=control.device)
         reach = fewest_reaching(config.target_psnr, len(patch),
                                 _judged_trial(writer, encoder, patch, weights, judge))
@@ -168,7 +166,7 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
              checkpointer: Checkpointer | None, progress: ProgressFactory,
              times: dict[str, float], stats: dict) -> PatchChoice:
     stage = RetrainStage(retrain, targets, writer.decoded_sketch(), encoder, config.seed,
-                         control, checkpointer)
+                         control, checkpointer, antialiased=config.antialiased)
     if plan is not None:
         stage.fit_rows = _row_fit(config.target_size, writer, encoder)
     train_stats: dict = {"prune": retrain.prune}
@@ -226,18 +224,19 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
     return PatchChoice(encoding, kept, stats)
 
 
-def build_targets(cloud: GaussianCloud, config: RetrainConfig, dataset: str | Path | None,
+def build_targets(cloud: GaussianCloud, config: EncoderConfig, dataset: str | Path | None,
                   device) -> Targets:
     """Dataset training images, or renders of ``cloud`` at sampled training views."""
+    views = config.retrain or _NO_RETRAIN
     if dataset is not None:
         from spcodec.imaging.datasets import load_dataset
-        return dataset_targets(load_dataset(dataset, downscale=config.downscale), device,
-                               config.max_views)
+        return dataset_targets(load_dataset(dataset, downscale=views.downscale), device,
+                               views.max_views)
     from spcodec.imaging.views import close_crops, sample_views
-    cameras = sample_views(cloud, config.views, resolution=(config.resolution, config.resolution),
+    cameras = sample_views(cloud, views.views, resolution=(views.resolution, views.resolution),
                            split="train", up=config.up)
-    crops = close_crops(cloud, config.close_views, config.close_distance, config.close_resolution,
-                        config.close_crop, up=config.up) if config.close_views else []
+    crops = close_crops(cloud, views.close_views, views.close_distance, views.close_resolution,
+                        views.close_crop, up=config.up) if views.close_views else []
     return distillation_targets(cloud, cameras, config.render_settings(DISTILLATION_BACKGROUND),
                                 device, crops)
 

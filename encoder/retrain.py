@@ -36,7 +36,7 @@ from spcodec.attributes import PatchAttribute
 from spcodec.cloud import GaussianCloud
 from spcodec.errors import Interrupted, UsageError
 from spcodec.imaging.importance import blend_weights
-from spcodec.imaging.render import GaussianParams
+from spcodec.imaging.render import GaussianParams, RenderSettings
 from spcodec.imaging.training.checkpoint import Checkpointer
 from spcodec.imaging.training.loop import FitLoop, StepReport
 from spcodec.imaging.training.optim import FreeGaussians
@@ -99,11 +99,11 @@ class RetrainStage:
 
     def __init__(self, config: RetrainConfig, targets: Targets, sketch: GaussianCloud,
                  patch_encoder: PatchEncoder, seed: int, control: RunControl,
-                 checkpointer: Checkpointer | None = None) -> None:
+                 checkpointer: Checkpointer | None = None, antialiased: bool = False) -> None:
         self.config, self.targets, self.seed, self.control = config, targets, seed, control
         self.checkpointer = checkpointer
         self.device = _device(control.device)
-        self.settings = config.render_settings(targets.background)
+        self.settings = RenderSettings(background=targets.background, antialiased=antialiased)
         self.frozen = GaussianParams.from_cloud(sketch, self.device) if len(sketch) else None
         self.patch_encoder = patch_encoder
         self.importance_cameras = spread(targets.whole_cameras, config.importance_views)

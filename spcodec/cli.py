@@ -84,6 +84,12 @@ PATCH_LAYERS_DEFAULT = 3
 RETRAIN_DEFAULTS = {"iterations": 3000, "finish_iterations": 600, "views": 48, "resolution": 400,
                     "close_views": 48}
 """``RetrainConfig`` defaults shown by --help (the same test keeps them equal)."""
+CHECKPOINT_EVERY = 500
+"""``RunControl.checkpoint_every``, for --help (a test keeps them equal)."""
+DEFAULT_THREADS = 1
+"""Torch threads for encodes that render or train when --threads is not given: the CPU renderer
+runs many small tensor operations that more threads barely speed up, while two threads on this
+project's busy 2-core machine ran retraining 4-8x slower than one (docs/RESULTS.md, section 13)."""
 MAX_TURNTABLE = 64
 """Views in a turntable contact sheet (64 views of 400 pixels make a 3,200-pixel square)."""
 
@@ -329,8 +335,8 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
     train.add_argument("--dataset", metavar="DIR", help="retrain against this dataset's training "
                        "images (COLMAP, transforms.json or LLFF; its test split is held out) "
                        "(default: renders of the input at sampled views, i.e. distillation)")
-    train.add_argument("--downscale", type=Bounded(int, 1), default=1, metavar="N",
-                       help="dataset image downscale factor: %(type)s (default: %(default)s)")
+    train.add_argument("--downscale", type=Bounded(int, 1), default=None, metavar="N",
+                       help="dataset image downscale factor: %(type)s (default: 1)")
     train.add_argument("--iterations", type=Bounded(int, 0), default=None, metavar="N",
                        help="retraining steps, one view each: %(type)s (default: "
                        f"{RETRAIN_DEFAULTS['iterations']})")
@@ -347,19 +353,22 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
     train.add_argument("--resolution", type=Bounded(int, 8, 8192), default=None, metavar="PIXELS",
                        help="distillation: side of the square training views: %(type)s "
                        f"(default: {RETRAIN_DEFAULTS['resolution']})")
-    train.add_argument("--up", default="-y", choices=["+x", "-x", "+y", "-y", "+z", "-z"],
-                       metavar="AXIS", help="the scene's up axis for sampled views, one of "
-                       "+x -x +y -y +z -z, as for eval (default: %(default)s)")
-    train.add_argument("--antialiased", action="store_true",
-                       help="render with Mip-Splatting's antialiased opacity (default: off)")
-    train.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
-                       help="auto: CUDA with gsplat when available, else the CPU (default: "
-                       "%(default)s)")
-    train.add_argument("--threads", type=Bounded(int, 1, 1024), default=None, metavar="N",
-                       help="CPU threads for training: %(type)s (default: torch's choice)")
-    train.add_argument("--checkpoint-every", type=Bounded(int, 0), default=500, metavar="N",
+    p.add_argument("--up", default="-y", choices=["+x", "-x", "+y", "-y", "+z", "-z"],
+                   metavar="AXIS", help="the scene's up axis, one of +x -x +y -y +z -z: for "
+                   "sampled views (as for eval) and stored in the file for viewers; write a "
+                   "negative axis as --up=-y (default: %(default)s)")
+    p.add_argument("--antialiased", action="store_true",
+                   help="render with Mip-Splatting's antialiased opacity (default: off)")
+    p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
+                   help="auto: CUDA with gsplat when available, else the CPU (default: "
+                   "%(default)s)")
+    p.add_argument("--threads", type=Bounded(int, 1, 1024), default=None, metavar="N",
+                       help="CPU threads for rendering and training: %(type)s (default: 1; the CPU "
+                       "renderer gains little from more and, on a busy 2-core machine, ran 4-8x "
+                       "slower with 2)")
+    train.add_argument("--checkpoint-every", type=Bounded(int, 0), default=None, metavar="N",
                        help="rewrite the checkpoint OUTPUT.ckpt every N steps, 0 = only when "
-                       "interrupted: %(type)s (default: %(default)s)")
+                       f"interrupted: %(type)s (default: {CHECKPOINT_EVERY})")
     train.add_argument("--resume", action="store_true",
                        help="continue an interrupted encode from OUTPUT.ckpt; give the same "
                        "arguments (default: off)")
@@ -378,7 +387,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
         refuse_same_file(args.stats, args.input, args.output)
         check_writable(args.stats)
     config = encode_config(args)
-    control = run_control(args) if config.retrain is not None else None
+    control = run_control(args, config.retrain is not None)
     cloud = read_ply(args.input)
     reporter = StageReporter(enabled=not args.quiet)
     with _stop_on_ctrl_c(control):
@@ -404,7 +413,7 @@ def encode_config(args: argparse.Namespace):
     if not retrain:
         given = [f"--{n.replace('_', '-')}" for n in ("dataset", "iterations", "finish_iterations",
                                                       "views", "close_views", "resolution",
-                                                      "resume")
+                                                      "resume", "checkpoint_every", "downscale")
                  if getattr(args, n) not in (None, False)]
         if given:
             raise UsageError(f"{', '.join(given)} only apply to retraining: drop --no-retrain or "
@@ -421,14 +430,15 @@ def encode_config(args: argparse.Namespace):
     if args.target_size is not None:
         config.target_size = parse_size(args.target_size)
     config.target_psnr = args.target_psnr
+    config.up, config.antialiased = args.up, args.antialiased
     if args.patch_layers is not None:
         config.patch = dataclasses.replace(config.patch, layers=args.patch_layers)
     if args.tau_max is not None:
         config.refine = dataclasses.replace(config.refine, tau_max=args.tau_max)
     if retrain:
-        changes = {"up": args.up, "antialiased": args.antialiased, "downscale": args.downscale}
+        changes = {}
         for name in ("patch_downsample", "prune", "iterations", "finish_iterations", "views",
-                     "close_views", "resolution"):
+                     "close_views", "resolution", "downscale"):
             if getattr(args, name) is not None:
                 changes[name] = getattr(args, name)
         config.retrain = dataclasses.replace(config.retrain, **changes)
@@ -438,19 +448,28 @@ def encode_config(args: argparse.Namespace):
     return config
 
 
-def run_control(args: argparse.Namespace):
-    """Device, threads, checkpoint and the resume hint of a retraining encode."""
+def run_control(args: argparse.Namespace, retraining: bool):
+    """Device and threads of an encode (checked before any work), and for retraining the
+    checkpoint and the resume hint."""
     import shlex
 
+    import torch
+
     from .encoder.retrain import RunControl
+    from .imaging.render import resolve_device
     from .imaging.training.checkpoint import checkpoint_path
 
-    if args.threads is not None:
-        import torch
-        torch.set_num_threads(args.threads)
+    torch.set_num_threads(args.threads or DEFAULT_THREADS)
+    try:
+        resolve_device(args.device)  # before any work: a missing GPU is the user's to fix
+    except RuntimeError as exc:
+        raise UsageError(f"--device {args.device}: {exc}; use --device cpu or auto") from None
+    if not retraining:
+        return RunControl(device=args.device)
     argv = [a for a in sys.argv[1:] if a != "--resume"] + ["--resume"]
+    every = CHECKPOINT_EVERY if args.checkpoint_every is None else args.checkpoint_every
     return RunControl(device=args.device, checkpoint=checkpoint_path(args.output),
-                      checkpoint_every=args.checkpoint_every, resume=args.resume,
+                      checkpoint_every=every, resume=args.resume,
                       resume_hint="spcodec " + shlex.join(argv))
 
 

@@ -279,9 +279,11 @@ def test_help_gives_every_option_its_default_and_range():
 
 
 def test_help_defaults_match_the_encoder():
-    from spcodec.cli import PATCH_LAYERS_DEFAULT, RETRAIN_DEFAULTS
+    from spcodec.cli import CHECKPOINT_EVERY, PATCH_LAYERS_DEFAULT, RETRAIN_DEFAULTS
     from spcodec.encoder.config import PatchConfig, RetrainConfig
+    from spcodec.encoder.retrain import RunControl
     assert PATCH_LAYERS_DEFAULT == PatchConfig().layers
+    assert CHECKPOINT_EVERY == RunControl().checkpoint_every
     defaults = RetrainConfig()
     assert RETRAIN_DEFAULTS == {name: getattr(defaults, name) for name in RETRAIN_DEFAULTS}
 
@@ -431,3 +433,35 @@ def test_bits_per_gaussian_count_the_gaussians_the_file_stores(tmp_path, capsys)
     size = out.stat().st_size
     assert f"for {stored:,} Gaussians ({8 * size / stored:.1f} bits per Gaussian; {full:,} in " \
         "the input)" in report.splitlines()[0]
+
+
+def _tiny_ply(tmp_path) -> Path:
+    from spcodec.synthetic import make_scene
+
+    ply = tmp_path / "scene.ply"
+    spcodec.write_ply(ply, make_scene(1, curves=1, per_curve=40, blobs=150).cloud)
+    return ply
+
+
+def test_a_missing_gpu_is_reported_before_any_work(tmp_path, capsys):
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA: --device cuda is valid here")
+    ply, out = _tiny_ply(tmp_path), tmp_path / "o.spc"
+    code, report, err = run(capsys, "encode", str(ply), "-o", str(out), "--device", "cuda")
+    assert code == 2 and err.count("\n") == 1 and "--device cuda" in err
+    assert "internal error" not in err and "[1]" not in err and not out.exists()
+
+
+def test_training_options_without_retraining_are_refused_not_ignored(tmp_path, capsys):
+    ply, out = _tiny_ply(tmp_path), tmp_path / "o.spc"
+    code, _, err = run(capsys, "encode", str(ply), "-o", str(out), "--no-retrain",
+                       "--checkpoint-every", "5", "--downscale", "2")
+    assert code == 2 and "--checkpoint-every, --downscale only apply to retraining" in err
+
+
+def test_the_up_axis_is_stored_in_the_file(tmp_path, capsys):
+    ply, out = _tiny_ply(tmp_path), tmp_path / "o.spc"
+    assert run(capsys, "encode", str(ply), "-o", str(out), "--no-retrain", "--up=+z")[0] == 0
+    assert spcodec.inspect(out).to_json()["metadata"]["up"] == "+z"

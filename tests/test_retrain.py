@@ -26,6 +26,7 @@ from spcodec.encoder.stages import SceneWriter
 from spcodec.errors import Interrupted, UsageError
 from spcodec.imaging.cameras import Camera
 from spcodec.imaging.evaluate import DatasetMismatchWarning, EvalConfig, evaluate_against_reference
+from spcodec.imaging.render import RenderSettings
 from spcodec.imaging.views import sample_views
 from spcodec.synthetic import make_scene
 
@@ -134,7 +135,7 @@ def test_training_never_changes_the_frozen_tensors(scene):
     sketch = scene.subset(np.arange(0, 300))
     patch = scene.subset(np.arange(300, len(scene)))
     cams = sample_views(scene, 4, resolution=(48, 48), split="train")
-    targets = distillation_targets(scene, cams, QUICK.render_settings((0, 0, 0)),
+    targets = distillation_targets(scene, cams, RenderSettings(),
                                    torch.device("cpu"))
     stage = RetrainStage(dataclasses.replace(QUICK, iterations=10), targets, sketch,
                          PatchEncoder(), 0, RunControl(device="cpu"))

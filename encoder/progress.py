@@ -23,6 +23,8 @@ class _PrintedStage(Stage):
         self.name, self.index, self.enabled, self.total = name, index, enabled, total
         self.start = time.perf_counter()
         self.count = 0
+        self.earlier = 0
+        """Steps an earlier run did (resumed): counted as done, not in this run's rate."""
         self.bar = None
         if enabled:
             if total and sys.stderr.isatty():
@@ -32,24 +34,53 @@ class _PrintedStage(Stage):
             else:
                 print(f"[{index}] {name} ...", file=sys.stderr, flush=True)
 
+    def resumed(self, count: int) -> None:
+        self.count = self.earlier = count
+        if self.bar is not None:
+            self.bar.n = self.bar.last_print_n = self.bar.initial = count
+            self.bar.refresh()
+        if self.enabled:
+            self._say(f"[{self.index}] {self.name}: resuming at step {count}/{self.total}")
+
     def update(self, count: int = 1, **figures: float) -> None:
         self.count += count
+        eta_all = figures.pop("eta_all", None)
         shown = {k: f"{v:.4g}" for k, v in figures.items()}
+        if eta_all is not None:
+            shown["ETA all"] = _clock(eta_all)
         if self.bar is not None:
             if shown:
                 self.bar.set_postfix(shown, refresh=False)
             self.bar.update(count)
         elif self.enabled and self.total and self._log_due(count):
             elapsed = time.perf_counter() - self.start
-            rate = self.count / elapsed if elapsed > 0 else 0.0
+            rate = (self.count - self.earlier) / elapsed if elapsed > 0 else 0.0
             eta = (self.total - self.count) / rate if rate > 0 else float("nan")
-            extra = "".join(f", {k} {v}" for k, v in shown.items())
+            extra = "".join(f", {k} {v}" for k, v in shown.items() if k != "ETA all")
+            total = f", all stages {shown['ETA all']}" if "ETA all" in shown else ""
             print(f"[{self.index}] {self.name} {self.count}/{self.total}{extra}, "
-                  f"{rate:.2f} it/s, ETA {_clock(eta)}", file=sys.stderr, flush=True)
+                  f"{rate:.2f} it/s, ETA {_clock(eta)}{total}", file=sys.stderr, flush=True)
+
+    def note(self, message: str) -> None:
+        if self.enabled:
+            self._say(f"[{self.index}] {message}")
+
+    def _say(self, line: str) -> None:
+        if self.bar is not None:
+            self.bar.write(line, file=sys.stderr)
+        else:
+            print(line, file=sys.stderr, flush=True)
 
     def _log_due(self, count: int) -> bool:
         step = max(1, self.total // _LOG_STEPS)
         return self.count // step != (self.count - count) // step or self.count == self.total
+
+    def abandon(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+        elif self.enabled and self.total and self.count % max(1, self.total // _LOG_STEPS):
+            print(file=sys.stderr, flush=True)
 
     def done(self, summary: str = "") -> None:
         if self.bar is not None:
@@ -73,10 +104,18 @@ class StageReporter:
 
     def __init__(self, enabled: bool = True) -> None:
         self.enabled, self.count = enabled, 0
+        self.current: _PrintedStage | None = None
 
     def stage(self, name: str, total: int | None) -> Stage:
         self.count += 1
-        return _PrintedStage(name, total, self.count, self.enabled)
+        self.current = _PrintedStage(name, total, self.count, self.enabled)
+        return self.current
+
+    def interrupt(self) -> None:
+        """End the stage in progress without a summary, so whatever is printed next starts on
+        a line of its own (not glued to a progress bar)."""
+        if self.current is not None:
+            self.current.abandon()
 def print_summary(stats: dict, stream: TextIO | None = None) -> None:
     """The human summary of an encode: counts, bytes per section, ratios, sketch errors (to
     ``stream``, standard output by default). Bits per Gaussian count the Gaussians the file

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -59,6 +59,9 @@ class PreparedTargets:
     device: torch.device
     psnr_input: float
     """PSNR of the input model against its targets (the mismatch check's figure)."""
+    seconds_per_render: float
+    """Mean time of one render of the input at a target view (distillation: all of them,
+    rendered twice; datasets: the check's one pass), what estimates of training time scale."""
 
 
 def prepare_targets(cloud: GaussianCloud, config: EncoderConfig, dataset: str | Path | None,
@@ -70,10 +73,15 @@ def prepare_targets(cloud: GaussianCloud, config: EncoderConfig, dataset: str | 
     device = resolve_device(control.device)
     targets = build_targets(cloud, config, dataset, device)
     settings = config.render_settings(targets.background)
+    checked = time.perf_counter()
     psnr = check_targets(cloud, targets, settings, device, dataset)
+    per_render = (time.perf_counter() - checked) / max(len(targets.views), 1)
     stage.done(f"{len(targets.views)} {targets.mode} views, input at {psnr:.2f} dB")
     times["targets"] = time.perf_counter() - t
-    return PreparedTargets(targets, settings, device, psnr)
+    prepared = PreparedTargets(targets, settings, device, psnr, per_render)
+    if config.retrain is not None:
+        progress("estimate", None).done(estimate_line(config.retrain, prepared))
+    return prepared
 
 
 def scene_weights(cloud: GaussianCloud, config: EncoderConfig,
@@ -172,8 +180,10 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
     train_stats: dict = {"prune": retrain.prune}
 
     t = time.perf_counter()
+    clock = TrainingClock()
     report = progress("retrain", retrain.iterations)
-    trained = stage.retrain(patch.subset(kept), train_stats, _meter(report))
+    trained = stage.retrain(patch.subset(kept), train_stats,
+                            _meter(report, clock, retrain.finish_iterations))
     if stage.kept is not None:  # rate control dropped some when snapping started
         train_stats["fitted_when_snapping"] = {"from": len(kept), "to": len(stage.kept)}
         kept = kept[stage.kept]
@@ -201,7 +211,7 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
 
     t = time.perf_counter()
     report = progress("finish", retrain.finish_iterations or None)
-    quantized, trained = stage.finish(trained, quantized, train_stats, _meter(report))
+    quantized, trained = stage.finish(trained, quantized, train_stats, _meter(report, clock))
     importance = stage.rank(trained)
     encoding = encoder.layer(trained, quantized, importance)
     if plan is not None:
@@ -296,8 +306,60 @@ def _sized(writer: SceneWriter, encoder: PatchEncoder, trained: GaussianCloud,
     return size
 
 
-def _meter(stage):
-    """A step callback that moves a progress stage and shows loss and PSNR."""
+STEP_PER_TARGET_RENDER = 1.0
+"""A training step costs about this many renders of the input at a target view (forward and
+backward of the pruned patch, against a forward of the whole input): what the estimate printed
+before retraining scales the targets' rendering time by. Measured on guitar: 0.7 s a step, 0.7 s
+a target render, one torch thread."""
+
+EVALUATION_STEPS = 60
+"""The closing evaluation (8 views at 400x400 and 16 at 800x800, each of the file and the input)
+costs about this many training steps."""
+
+
+@dataclass
+class TrainingClock:
+    """Times the training steps as they run, to tell how long every stage still to come takes
+    (the rest of this one, the later training stages, and the closing evaluation)."""
+
+    started: float = field(default_factory=time.perf_counter)
+    steps: int = 0
+
+    def eta_all(self, left: int) -> float:
+        """Seconds for ``left`` more steps and the evaluation at the rate so far."""
+        self.steps += 1
+        per_step = (time.perf_counter() - self.started) / self.steps
+        return (left + EVALUATION_STEPS) * per_step
+
+
+def estimate_line(retrain: RetrainConfig, prepared: PreparedTargets) -> str:
+    """The one line printed before retraining starts: how long it will take here, and how to
+    have a faster encode instead."""
+    step = prepared.seconds_per_render * STEP_PER_TARGET_RENDER
+    steps = retrain.iterations + retrain.finish_iterations
+    total = (steps + EVALUATION_STEPS) * step
+
+    def minutes(seconds: float) -> str:
+        return f"{seconds / 60:.0f} min" if seconds >= 90 else f"{seconds:.0f} s"
+
+    faster = ""
+    if retrain.iterations > 1000:
+        quick = (1000 + retrain.finish_iterations + EVALUATION_STEPS) * step
+        faster = f"; --iterations 1000 takes about {minutes(quick)} for about 1 dB less"
+    return (f"retraining takes about {minutes(total)} here ({retrain.iterations:,} + "
+            f"{retrain.finish_iterations:,} steps at ~{step:.2f} s){faster}; --no-retrain takes "
+            "seconds, for a larger file")
+
+
+def _meter(stage, clock: TrainingClock, later: int = 0):
+    """A step callback that moves a progress stage, shows loss and PSNR and the ETA of all that
+    is left (``later``: steps of the training stages after this one), and starts a resumed run
+    at its step."""
     def on_step(report) -> None:
-        stage.update(1, loss=report.loss, psnr=report.psnr)
+        if not on_step.seen and report.step > 1:
+            stage.resumed(report.step - 1)
+        on_step.seen = True
+        left = report.total - report.step + later
+        stage.update(1, loss=report.loss, psnr=report.psnr, eta_all=clock.eta_all(left))
+    on_step.seen = False
     return on_step

@@ -282,10 +282,10 @@ class RetrainStage:
         if completed:
             return
         if checkpointer is None:
-            raise Interrupted(f"interrupted at {name} step {loop.step}/{loop.total} "
+            raise Interrupted(f"stopped at {name} step {loop.step}/{loop.total} "
                                     "(no checkpoint was configured, nothing was saved)")
         checkpointer.save(name, loop.step, state())
-        raise Interrupted(f"interrupted at {name} step {loop.step}/{loop.total}; checkpoint "
+        raise Interrupted(f"stopped at {name} step {loop.step}/{loop.total}; checkpoint "
                                 f"saved to {checkpointer.path}; to resume: {control.resume_hint}")
 
 

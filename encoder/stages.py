@@ -23,10 +23,17 @@ ProgressFactory = Callable[[str, int | None], "Stage"]
 
 class Stage:
     """Progress of one stage; the default prints nothing. ``update`` may carry figures to show
-    (training steps pass ``loss`` and ``psnr``)."""
+    (training steps pass ``loss`` and ``psnr``, and ``eta_all``: seconds left for every stage
+    still to come, not only this one)."""
+
+    def resumed(self, count: int) -> None:  # pragma: no cover - trivial
+        """``count`` steps were done by an earlier run (a resumed checkpoint): start there."""
 
     def update(self, count: int = 1, **figures: float) -> None:  # pragma: no cover - trivial
         pass
+
+    def note(self, message: str) -> None:  # pragma: no cover - trivial
+        """A line for the user that is no stage of its own (an estimate, a choice made)."""
 
     def done(self, summary: str = "") -> None:  # pragma: no cover - trivial
         pass

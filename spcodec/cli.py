@@ -391,8 +391,13 @@ def cmd_encode(args: argparse.Namespace) -> int:
     cloud = read_ply(args.input)
     reporter = StageReporter(enabled=not args.quiet)
     with _stop_on_ctrl_c(control):
-        result = encode(cloud, config, progress=reporter.stage, source_name=Path(args.input).name,
-                        dataset=args.dataset, control=control)
+        try:
+            result = encode(cloud, config, progress=reporter.stage,
+                            source_name=Path(args.input).name, dataset=args.dataset,
+                            control=control)
+        except (Interrupted, KeyboardInterrupt):
+            reporter.interrupt()
+            raise
     atomic_write(args.output, result.data)
     stats = dict(result.stats, input_bytes=os.path.getsize(args.input), output=str(args.output))
     if args.stats:
@@ -687,7 +692,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         _fail("interrupted")
         return 130
     except Interrupted as exc:
-        _fail(str(exc))
+        _fail(str(exc), label="interrupted")
         return 130
     except Exception as exc:  # noqa: BLE001 - the one place that turns errors into one line
         if args.debug:
@@ -744,9 +749,9 @@ def report_stream(output: str):
     return sys.stderr if same else sys.stdout
 
 
-def _fail(message: str) -> None:
+def _fail(message: str, label: str = "error") -> None:
     first = message.strip().splitlines()[0] if message.strip() else "failed"
-    print(f"spcodec: error: {first}", file=sys.stderr)
+    print(f"spcodec: {label}: {first}", file=sys.stderr)
 
 
 def _quiet_broken_pipe() -> None:

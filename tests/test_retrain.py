@@ -161,13 +161,41 @@ def test_interrupt_and_resume_give_the_same_bytes(tmp_path, scene, stop_stage, s
             control.stop.set()
 
     control.on_step = stop_at_step
-    with pytest.raises(Interrupted, match=f"interrupted at {stop_stage} step {stop_at}/"):
+    with pytest.raises(Interrupted, match=f"stopped at {stop_stage} step {stop_at}/"):
         encode(scene, config, control=control)
     assert control.checkpoint.exists()
     resumed = encode(scene, config, control=RunControl(device="cpu", checkpoint=control.checkpoint,
                                                        resume=True))
     assert resumed.data == whole
     assert not control.checkpoint.exists()  # removed once the encode completes
+
+
+def test_progress_estimates_up_front_resumes_where_it_stopped_and_times_every_stage(
+        tmp_path, scene, capsys):
+    """The default encode is a training job: one line says how long before it starts; a
+    resumed run's progress starts at the step it stopped at (it restarted at 0 and ended at
+    245/300) and says so; every training line carries the ETA of all that is left."""
+    from spcodec.encoder.progress import StageReporter
+
+    config = retrain_config(iterations=40)
+    control = RunControl(device="cpu", checkpoint=tmp_path / "s.spc.ckpt", checkpoint_every=10)
+    control.on_step = lambda stage, report: control.stop.set() if (
+        stage == "retrain" and report.step == 23) else None
+    with pytest.raises(Interrupted):
+        encode(scene, config, progress=StageReporter().stage, control=control)
+    first = capsys.readouterr().err
+    estimate = next(line for line in first.splitlines() if "retraining takes about" in line)
+    assert "--no-retrain" in estimate and first.index(estimate) < first.index("] retrain ")
+    encode(scene, config, progress=StageReporter().stage, control=RunControl(
+        device="cpu", checkpoint=control.checkpoint, resume=True))
+    err = capsys.readouterr().err
+    assert "retrain: resuming at step 23/40" in err
+    counts = [int(line.split()[2].split("/")[0]) for line in err.splitlines()
+              if line.split()[1:2] == ["retrain"] and "/" in line.split()[2]]
+    assert counts and min(counts) > 23 and counts[-1] == 40
+    training = [line for line in err.splitlines() if " it/s" in line and (
+        "] retrain " in line or "] finish " in line)]
+    assert training and all("all stages" in line for line in training)
 
 
 def test_resume_refuses_other_settings_and_a_fresh_run_keeps_the_checkpoint(tmp_path, scene):
@@ -200,7 +228,8 @@ def test_ctrl_c_leaves_a_checkpoint_no_output_and_one_line(tmp_path, scene):
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130
-    lines = [line for line in err.splitlines() if line.startswith("spcodec: error:")]
+    assert "spcodec: error" not in err  # stopping on request is not an error
+    lines = [line for line in err.splitlines() if line.startswith("spcodec: interrupted:")]
     assert len(lines) == 1 and "checkpoint saved to" in lines[0]
     assert lines[0].endswith("--quiet --resume")
     assert not out.exists() and ckpt.exists()

@@ -75,6 +75,13 @@ class InProcessDecoder:
     name = "spcodec (in-process)"
     supports_max_layer = True
 
+    @property
+    def lacks_zstd(self) -> bool:
+        """The optional zstd codec is not installed here (``pip install spcodec`` without the
+        ``zstd`` extra): vectors that need it must then fail with codec-unavailable."""
+        from importlib.util import find_spec
+        return find_spec("zstandard") is None
+
     def decode(self, path: Path, max_layer: int | None, sh_degree: int | None) -> Decode:
         import spcodec
 
@@ -220,6 +227,8 @@ class Report:
     results: list[Result] = field(default_factory=list)
     seconds: float = 0.0
     vectors: int = 0
+    without_zstd: str = ""
+    """Why decodes that need zstd expected codec-unavailable ("": they did not)."""
 
     def count(self, status: str) -> int:
         return sum(r.status == status for r in self.results)
@@ -230,12 +239,15 @@ class Report:
 
     @property
     def ok(self) -> bool:
-        return self.count("fail") == 0
+        """Every selected decode ran and passed: a decode left unrun (no --max-layer-arg for an
+        external decoder) is not a pass, or a decoder that cannot stop at a layer would conform."""
+        return self.count("fail") == 0 and self.count("not run") == 0
 
     def to_json(self) -> dict:
         return {"decoder": self.decoder, "suite": self.suite, "vectors": self.vectors,
                 "decodes": len(self.results), "passed": self.count("pass"),
                 "failed": self.count("fail"), "not_run": self.count("not run"),
+                "without_zstd": self.without_zstd or None,
                 "seconds": round(self.seconds, 3), "failed_vectors": self.failed_vectors,
                 "results": [r.to_json() for r in self.results]}
 
@@ -256,6 +268,11 @@ class Report:
                 f"({self.seconds:.1f} s, decoder: {self.decoder})")
         if self.failed_vectors:
             text += "\nfailed: " + ", ".join(self.failed_vectors)
+        if self.count("not run"):
+            text += ("\nnot conforming until every decode runs: give --max-layer-arg (how the "
+                     "decoder is told to stop after layer k, e.g. '--max-layer {k}')")
+        if self.without_zstd:
+            text += f"\nwithout zstd: {self.without_zstd}; vectors needing it expect codec-unavailable"
         return text
 
 
@@ -274,6 +291,11 @@ def run_suite(decoder: Decoder, manifest: Manifest | None = None, only: list[str
     vectors = [v for v in manifest.vectors
                if not only or any(fnmatch.fnmatchcase(v.id, pattern) for pattern in only)]
     report = Report(decoder.name, str(manifest.root), vectors=len(vectors))
+    if without_zstd:
+        report.without_zstd = "as asked (--without-zstd)"
+    elif getattr(decoder, "lacks_zstd", False):
+        without_zstd = True
+        report.without_zstd = "the zstandard package is not installed (pip install 'spcodec[zstd]')"
     start = time.perf_counter()
     for vector in vectors:
         report.results += run_vector(decoder, manifest, vector, without_zstd)

@@ -282,11 +282,33 @@ def test_external_decoders_that_break_the_contract_fail(tmp_path, capsys, mode, 
     assert status == 1 and reason in out and f"failed: {vector}" in out
 
 
-def test_decodes_needing_max_layer_are_not_run_without_the_argument(capsys):
+def test_decodes_needing_max_layer_are_not_run_without_the_argument_and_do_not_pass(capsys):
+    """Skipping 228 of 420 decodes and exiting 0 let a decoder that cannot stop at a layer
+    claim conformance."""
     status = main(["conformance", "--decoder", _cli("decode", "{input}", "-o", "{output}"),
                    "--only", "empty-scene", "--json"])
     doc = json.loads(capsys.readouterr().out)
-    assert status == 0 and doc["passed"] == 1 and doc["not_run"] == 2 and doc["failed"] == 0
+    assert status == 1 and doc["passed"] == 1 and doc["not_run"] == 2 and doc["failed"] == 0
+    main(["conformance", "--decoder", _cli("decode", "{input}", "-o", "{output}"),
+          "--only", "empty-scene"])
+    assert "give --max-layer-arg" in capsys.readouterr().out
+
+
+def test_the_in_process_decoder_without_zstandard_expects_codec_unavailable(capsys, monkeypatch):
+    """A plain `pip install spcodec` (no zstd extra) failed the zstd vectors of its own suite."""
+    import importlib.util
+
+    from spcodec.conformance.runner import InProcessDecoder
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "zstandard" else real(name, *a))
+    monkeypatch.setitem(sys.modules, "zstandard", None)  # importing it now fails
+    assert InProcessDecoder().lacks_zstd
+    status = main(["conformance", "--only", "*zstd*", "--json"])
+    doc = json.loads(capsys.readouterr().out)
+    assert status == 0 and doc["failed"] == 0 and doc["decodes"] > 0
+    assert "not installed" in doc["without_zstd"]
 
 
 @pytest.mark.parametrize("argv", [

@@ -407,6 +407,9 @@ class EncoderConfig:
     #: file's metadata (for viewers) use them.
     up: str = "-y"
     antialiased: bool = False
+    #: The screen-space low-pass (px^2) training renders with, targets and model alike: 0.3 is
+    #: INRIA's and gsplat's; PlayCanvas draws with 0.075 (docs/RESULTS.md, section 13).
+    blur_variance: float = 0.3
     #: Prune and retrain the patch (None: the no-retrain encoder). See :mod:`.retrain`.
     retrain: "RetrainConfig | None" = None
     #: Rate control: aim the file at this many bytes (within 5 %) by choosing how many patch
@@ -432,7 +435,8 @@ class EncoderConfig:
 
     def render_settings(self, background: tuple[float, float, float]) -> RenderSettings:
         """How training and judging render this scene."""
-        return RenderSettings(background=background, antialiased=self.antialiased)
+        return RenderSettings(background=background, antialiased=self.antialiased,
+                              blur_variance=self.blur_variance)
 
     def to_json(self) -> dict:
         """Plain JSON-ready settings (stored in the file's metadata)."""

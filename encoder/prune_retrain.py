@@ -174,7 +174,7 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
              checkpointer: Checkpointer | None, progress: ProgressFactory,
              times: dict[str, float], stats: dict) -> PatchChoice:
     stage = RetrainStage(retrain, targets, writer.decoded_sketch(), encoder, config.seed,
-                         control, checkpointer, antialiased=config.antialiased)
+                         control, checkpointer, settings=config.render_settings(targets.background))
     if plan is not None:
         stage.fit_rows = _row_fit(config.target_size, writer, encoder)
     train_stats: dict = {"prune": retrain.prune}

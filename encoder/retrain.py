@@ -99,11 +99,12 @@ class RetrainStage:
 
     def __init__(self, config: RetrainConfig, targets: Targets, sketch: GaussianCloud,
                  patch_encoder: PatchEncoder, seed: int, control: RunControl,
-                 checkpointer: Checkpointer | None = None, antialiased: bool = False) -> None:
+                 checkpointer: Checkpointer | None = None,
+                 settings: RenderSettings | None = None) -> None:
         self.config, self.targets, self.seed, self.control = config, targets, seed, control
         self.checkpointer = checkpointer
         self.device = _device(control.device)
-        self.settings = RenderSettings(background=targets.background, antialiased=antialiased)
+        self.settings = settings or RenderSettings(background=targets.background)
         self.frozen = GaussianParams.from_cloud(sketch, self.device) if len(sketch) else None
         self.patch_encoder = patch_encoder
         self.importance_cameras = spread(targets.whole_cameras, config.importance_views)

@@ -1,11 +1,14 @@
-"""Rate-distortion curves: S&P++ retrained, Prune&Retrain, the no-retrain presets and SPZ, in one run.
+"""Rate-distortion curves: S&P++ retrained, Prune&Retrain, the no-retrain presets, SPZ and SOG, in one run.
 
-For each scene every method is encoded from the same input PLY and judged the same way:
+For each scene every method is encoded from the same input PLY and judged the same ways:
 
-* **distillation scenes** (a PLY only): renders of the decoded file against renders of the input
-  at the 8 held-out sampled views of 400x400 (``spcodec eval --reference``);
-* **lego** (dataset mode): the model trained by ``bench/train_vanilla.py`` retrained against the
-  dataset's training images and judged against its test images (``spcodec eval --dataset``).
+* **the viewer** (the yardstick): the decoded file against the input, both rendered by the
+  PlayCanvas engine in Chromium at its orbit framing and at half that distance (``orbit`` and
+  ``close`` columns; :mod:`viewer_yardstick`, skipped with a note where it cannot run);
+* **our eval**: renders against renders of the input at the 8 held-out sampled views of 400x400
+  and at half their distance, 800x800 (``spcodec eval --reference``); for **lego** (dataset mode:
+  the model trained by ``bench/train_vanilla.py`` retrained against the dataset's training images)
+  against its test images (``spcodec eval --dataset``) as well.
 
 Methods (the paper's section "Comparison Methods"):
 
@@ -15,7 +18,9 @@ Methods (the paper's section "Comparison Methods"):
   (``--prune uniform``) by the same factors, same retraining budget;
 * ``noretrain``: the three no-retrain presets;
 * ``spz``: a real SPZ writer (PlayCanvas splat-transform on PATH or ``$SPLAT_TRANSFORM``, else
-  gsply), decoded back and judged like the rest.
+  gsply), decoded back and judged like the rest;
+* ``sog``: PlayCanvas's SOG, written by splat-transform on the CPU (``-g cpu``);
+* ``spz4``: S&P++ aimed at a quarter of SPZ's bytes (``--target-size``), the issue's bar.
 
 Every encode runs as its own ``spcodec encode`` process under ``/usr/bin/time`` (peak memory
 per run) with ``--stats`` (time per stage). Rows are appended to a JSON file as they finish, so an
@@ -23,8 +28,8 @@ interrupted sweep continues where it stopped; ``--plot`` draws one PSNR-vs-size 
 (log size axis) into ``docs/results/``. matplotlib is needed for the plots only (install by hand).
 
     python bench/bench_rd.py --json rd.json [--scenes fourth_st donut guitar kacytran lego]
-        [--methods sp pr noretrain spz] [--factors 2 4 8 16] [--iterations 3000]
-        [--lego-model /path/lego.ply --lego-downscale 4]
+        [--methods sp pr noretrain spz sog spz4] [--factors 2 4 8 16] [--iterations 3000]
+        [--lego-model /path/lego.ply --lego-downscale 4] [--no-viewer]
     python bench/bench_rd.py --json rd.json --plot docs/results
 """
 
@@ -43,13 +48,14 @@ from pathlib import Path
 import spcodec
 from spcodec.imaging.evaluate import EvalConfig, evaluate_against_dataset, evaluate_against_reference
 
+import viewer_yardstick
 from bench_quality import SCENES, spz_round_trip  # bench/ is on sys.path
 from scenes import data_dir
 
 LEGO_DATASET = "nerf_synthetic_lego"
-METHODS = ("sp", "pr", "noretrain", "spz")
+METHODS = ("sp", "pr", "noretrain", "spz", "sog", "spz4")
 LABELS = {"sp": "S&P++ (retrained)", "pr": "Prune&Retrain", "noretrain": "no-retrain presets",
-          "spz": "SPZ", "original": "original",
+          "spz": "SPZ", "sog": "SOG", "spz4": "S&P++ at SPZ/4", "original": "original",
           # rows added by hand from single encodes (docs/RESULTS.md says which)
           "sp-highrate": "S&P++, highrate codebooks", "sp-target": "S&P++ --target-size"}
 
@@ -66,24 +72,56 @@ def scene_setup(name: str, args) -> dict:
             "downscale": 1}
 
 
-def judge(decoded: spcodec.GaussianCloud, original: spcodec.GaussianCloud, setup: dict) -> dict:
-    """PSNR/SSIM as ``spcodec eval`` measures them for this scene."""
+def judge(decoded: spcodec.GaussianCloud, original: spcodec.GaussianCloud, setup: dict,
+          decoded_ply: Path | None = None, viewer: Path | None = None) -> dict:
+    """PSNR/SSIM as ``spcodec eval`` measures them for this scene (and at half the distance),
+    and, with ``viewer`` (a cache folder) and the decoded PLY, the viewer's two framings."""
+    decoded = _finite(decoded)
+    out = {}
     if setup["dataset"] is not None:
         report = evaluate_against_dataset(decoded, setup["dataset"], EvalConfig(
             downscale=setup["downscale"], device="cpu"))
+        out.update(psnr=report.psnr, ssim=report.ssim)
     else:
         report = evaluate_against_reference(decoded, original, EvalConfig(
-            device="cpu", up=setup["up"], antialiased=setup["antialiased"]))
-    return {"psnr": report.psnr, "ssim": report.ssim}
+            device="cpu", up=setup["up"], antialiased=setup["antialiased"], closeups=(0.5,)))
+        close = report.framing(0.5)
+        out.update(psnr=report.psnr, ssim=report.ssim, psnr_close=close.psnr,
+                   ssim_close=close.ssim)
+    if viewer is not None and decoded_ply is not None:
+        out.update(viewer_yardstick.two_framings(setup["ply"], decoded_ply, viewer,
+                                                 setup["up"], setup["antialiased"]))
+    return out
+
+
+def _finite(cloud: spcodec.GaussianCloud) -> spcodec.GaussianCloud:
+    """Peers write an opacity of exactly 0 or 1 as an infinite logit; it renders as +-20."""
+    import numpy as np
+    cloud.opacities = np.nan_to_num(cloud.opacities, posinf=20.0, neginf=-20.0)
+    return cloud
+
+
+def sog_round_trip(ply: Path, work: Path) -> tuple[str, int, Path]:
+    """(tool, SOG bytes, decoded PLY) through PlayCanvas splat-transform on the CPU."""
+    import shutil
+    tool = os.environ.get("SPLAT_TRANSFORM") or shutil.which("splat-transform")
+    if not tool:
+        raise SystemExit("sog needs splat-transform on PATH or $SPLAT_TRANSFORM")
+    sog, back = work / "peer.sog", work / "peer.ply"
+    subprocess.run([tool, "-w", "-g", "cpu", str(ply), str(sog)], check=True, capture_output=True)
+    subprocess.run([tool, "-w", str(sog), str(back)], check=True, capture_output=True)
+    return "splat-transform", sog.stat().st_size, back
 
 
 def encode_args(method: str, param, setup: dict, args) -> list[str]:
     """The ``spcodec encode`` options of one point of a curve."""
     view = [f"--up={setup['up']}"] + (["--antialiased"] if setup["antialiased"] else [])
     if method == "noretrain":
-        return ["--no-retrain", "--preset", param]
-    common = ["--patch-downsample", str(param), "--iterations", str(args.iterations),
-              "--threads", str(args.threads), "--device", "cpu", *view]
+        return ["--no-retrain", "--preset", param, *view]
+    size = ["--target-size", str(param)] if method == "spz4" else \
+        ["--patch-downsample", str(param)]
+    common = [*size, "--iterations", str(args.iterations), "--threads", str(args.threads),
+              "--device", "cpu", *view]
     if setup["dataset"] is not None:
         common += ["--dataset", str(setup["dataset"]), "--downscale", str(setup["downscale"])]
     if method == "pr":
@@ -104,46 +142,73 @@ def run_encode(ply: Path, extra: list[str], work: Path) -> tuple[Path, dict, flo
 
 def sweep(args) -> None:
     rows = json.loads(args.json.read_text()) if args.json.exists() else []
-    done = {(r["scene"], r["method"], "-" if r["method"] == "spz" else str(r["param"]))
-            for r in rows}  # an SPZ row's param names the tool; its curve point is "-"
+    done = {(r["scene"], r["method"], str(r.get("point", r["param"]))) for r in rows}
+    viewer = None
+    if not args.no_viewer:
+        reason = viewer_yardstick.missing()
+        if reason:
+            print(f"viewer columns skipped: {reason}", file=sys.stderr)
+        else:
+            viewer = args.viewer_cache
 
     def record(row: dict) -> None:
         rows.append(row)
         args.json.write_text(json.dumps(rows, indent=2))
+        seen = "".join(f"  {k} {row[k]:6.2f}" for k in ("orbit", "close") if k in row)
         print(f"{row['scene']:>10} {row['method']:>9} {str(row['param']):>8}: "
-              f"{row['bytes']:>10,} B  {row['psnr']:6.2f} dB  {row.get('seconds') or 0:7.1f} s",
-              flush=True)
+              f"{row['bytes']:>10,} B  eval {row['psnr']:6.2f} dB{seen}  "
+              f"{row.get('seconds') or 0:7.1f} s", flush=True)
 
     for name in args.scenes:
         setup = scene_setup(name, args)
         original = spcodec.read_ply(setup["ply"])
         ply_bytes = setup["ply"].stat().st_size
         if setup["dataset"] is not None and (name, "original", "-") not in done:
-            record(dict(scene=name, method="original", param="-", bytes=ply_bytes,
+            record(dict(scene=name, method="original", param="-", point="-", bytes=ply_bytes,
                         **judge(original, original, setup), gaussians=len(original)))
         points = {"sp": args.factors, "pr": args.factors,
-                  "noretrain": ["lowrate", "balanced", "highrate"], "spz": ["-"]}
+                  "noretrain": ["lowrate", "balanced", "highrate"], "spz": ["-"], "sog": ["-"],
+                  "spz4": ["-"]}
         for method in args.methods:
             for param in points[method]:
                 if (name, method, str(param)) in done:
                     continue
                 with tempfile.TemporaryDirectory() as tmp:
-                    if method == "spz":
-                        tool, size, decoded = spz_round_trip(setup["ply"], Path(tmp))
-                        record(dict(scene=name, method=method, param=tool, bytes=size,
-                                    **judge(decoded, original, setup), ply=ply_bytes))
+                    work = Path(tmp)
+                    if method in ("spz", "sog"):
+                        if method == "spz":
+                            tool, size, _ = spz_round_trip(setup["ply"], work)
+                            back = work / "peer.ply"
+                        else:
+                            tool, size, back = sog_round_trip(setup["ply"], work)
+                        record(dict(scene=name, method=method, param=tool, point=param,
+                                    bytes=size, ply=ply_bytes, **judge(
+                                        spcodec.read_ply(back), original, setup, back, viewer)))
+                        done.add((name, method, str(param)))
                         continue
+                    target = param
+                    if method == "spz4":
+                        spz = next((r for r in rows if r["scene"] == name and r["method"] == "spz"),
+                                   None)
+                        if spz is None:
+                            raise SystemExit(f"{name}: spz4 needs the spz row: run --methods spz "
+                                             "spz4")
+                        target = spz["bytes"] // 4
                     start = time.perf_counter()
                     out, stats, peak = run_encode(setup["ply"],
-                                                  encode_args(method, param, setup, args),
-                                                  Path(tmp))
+                                                  encode_args(method, target, setup, args), work)
                     seconds = time.perf_counter() - start
                     decoded = spcodec.decode(out)
-                    record(dict(scene=name, method=method, param=param, bytes=out.stat().st_size,
-                                **judge(decoded, original, setup), seconds=seconds,
-                                stages=stats["seconds"], peak_mib=peak, ply=ply_bytes,
-                                gaussians=len(decoded), sketch=stats["sketch_gaussians"],
-                                reported=stats.get("quality"), retrain=stats.get("retrain")))
+                    decoded_ply = work / "decoded.ply"
+                    spcodec.write_ply(decoded_ply, decoded)
+                    record(dict(scene=name, method=method, param=target, point=param,
+                                bytes=out.stat().st_size,
+                                **judge(decoded, original, setup, decoded_ply, viewer),
+                                seconds=seconds, stages=stats["seconds"], peak_mib=peak,
+                                ply=ply_bytes, gaussians=len(decoded),
+                                sketch=stats["sketch_gaussians"], reported=stats.get("quality"),
+                                retrain=stats.get("retrain")))
+                    done.add((name, method, str(param)))
 
 
 def _minor_label(value: float, _position) -> str:
@@ -152,7 +217,13 @@ def _minor_label(value: float, _position) -> str:
     return f"{value:g}" if lead in (2, 3, 5) else ""
 
 
+PANELS = (("orbit", "PlayCanvas, orbit framing"), ("close", "PlayCanvas, half the distance"),
+          ("psnr", "our eval (400x400, whole scene)"))
+
+
 def plot(args) -> None:
+    """One figure per scene: PSNR against size (log) at the viewer's two framings and in our
+    eval, a panel each; lego's third panel is against its test images."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -161,25 +232,29 @@ def plot(args) -> None:
     rows = json.loads(args.json.read_text())
     args.plot.mkdir(parents=True, exist_ok=True)
     styles = {"sp": ("o-", "C0"), "pr": ("s--", "C1"), "noretrain": ("^:", "C2"),
-              "spz": ("*", "C3"), "original": ("D", "k"), "sp-highrate": ("v-.", "C4"),
-              "sp-target": ("P", "C0")}
+              "spz": ("*", "C3"), "sog": ("X", "C5"), "spz4": ("P", "C4"), "original": ("D", "k")}
     for name in dict.fromkeys(r["scene"] for r in rows):
-        fig, ax = plt.subplots(figsize=(6, 4.2), dpi=120)
-        for method, (style, colour) in styles.items():
-            pts = sorted((r["bytes"], r["psnr"]) for r in rows
-                         if r["scene"] == name and r["method"] == method)
-            if pts:
-                ax.plot([p[0] / 1e6 for p in pts], [p[1] for p in pts], style, color=colour,
-                        label=LABELS[method], markersize=9 if method == "spz" else 5)
-        ax.set_xscale("log")
-        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-        ax.xaxis.set_minor_formatter(FuncFormatter(_minor_label))
-        ax.set_xlabel("file size (MB, log scale)")
-        against = "test images" if name == "lego" else "renders of the original"
-        ax.set_ylabel(f"PSNR (dB) against {against}")
-        ax.set_title(name)
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
+        panels = [(key, title) for key, title in PANELS
+                  if any(key in r for r in rows if r["scene"] == name)]
+        fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 4.2), dpi=110,
+                                 squeeze=False)
+        for ax, (key, title) in zip(axes[0], panels):
+            for method, (style, colour) in styles.items():
+                pts = sorted((r["bytes"], r[key]) for r in rows
+                             if r["scene"] == name and r["method"] == method and key in r)
+                if pts:
+                    ax.plot([p[0] / 1e6 for p in pts], [p[1] for p in pts], style,
+                            color=colour, label=LABELS[method],
+                            markersize=9 if method in ("spz", "sog", "spz4") else 5)
+            ax.set_xscale("log")
+            ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+            ax.xaxis.set_minor_formatter(FuncFormatter(_minor_label))
+            ax.set_xlabel("file size (MB, log scale)")
+            against = "test images" if name == "lego" and key == "psnr" else "the original"
+            ax.set_ylabel(f"PSNR (dB) against {against}")
+            ax.set_title(f"{name}: {title}", fontsize=10)
+            ax.grid(True, which="both", alpha=0.3)
+        axes[0][0].legend(fontsize=8)
         fig.tight_layout()
         fig.savefig(args.plot / f"rd_{name}.png")
         plt.close(fig)
@@ -193,7 +268,11 @@ def main() -> None:
     ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     ap.add_argument("--factors", nargs="+", type=float, default=[2, 4, 8, 16])
     ap.add_argument("--iterations", type=int, default=3000)
-    ap.add_argument("--threads", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--no-viewer", action="store_true", help="skip the PlayCanvas columns")
+    ap.add_argument("--viewer-cache", type=Path,
+                    default=Path(tempfile.gettempdir()) / "spcodec-yardstick",
+                    help="where the inputs' viewer renders are kept between runs")
     ap.add_argument("--lego-model", help="the model bench/train_vanilla.py wrote")
     ap.add_argument("--lego-downscale", type=int, default=4)
     ap.add_argument("--plot", type=Path, help="draw the figures into this folder and exit")

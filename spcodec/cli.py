@@ -116,7 +116,7 @@ def _add_decode(p: argparse.ArgumentParser) -> None:
 
 @command("decode", "decode an .spc file into a 3DGS PLY or a glTF (.glb)", _add_decode)
 def cmd_decode(args: argparse.Namespace) -> int:
-    from .decoder import decode_layers
+    from .decoder import decode_layers, inspect
     from .fileio import check_writable, is_stdout, refuse_same_file
     from .gltf import write_glb
     from .ply import write_ply
@@ -134,11 +134,37 @@ def cmd_decode(args: argparse.Namespace) -> int:
     result = decode_layers(args.input, max_layer=args.max_layer)
     elapsed = time.perf_counter() - start
     cloud = result.cloud
-    (write_glb if suffix == ".glb" else write_ply)(args.output, cloud)
+    if suffix == ".glb":  # upright in glTF's +Y, from the up axis the file stores
+        write_glb(args.output, cloud, up=(inspect(args.input).metadata or {}).get("up"))
+    else:
+        write_ply(args.output, cloud)
     counts = ", ".join(f"L{layer.index} {len(layer.cloud)}" for layer in result.layers)
     print(f"decoded {len(cloud)} Gaussians ({counts}) in {elapsed * 1000:.0f} ms -> "
           f"{'standard output' if is_stdout(args.output) else args.output}",
           file=report_stream(args.output))
+    return EXIT_OK
+
+
+# ---------------------------------------------------------------------------------- embed
+def _add_embed(p: argparse.ArgumentParser) -> None:
+    p.add_argument("input", help="an .spc file")
+    p.add_argument("-o", "--output", required=True, help="the .glb to write")
+
+
+@command("embed", "wrap an .spc in a glTF (.glb): KHR_gaussian_splatting whose data is the .spc "
+         "(SPCODEC_gaussian_splatting_compression_spc), upright in glTF's +Y", _add_embed)
+def cmd_embed(args: argparse.Namespace) -> int:
+    from .fileio import atomic_write, check_writable, refuse_same_file
+    from .gltf import compressed_glb_bytes
+
+    if Path(args.output).suffix.lower() != ".glb":
+        raise UsageError(f"cannot write {args.output}: embed writes a binary glTF, name it .glb")
+    refuse_same_file(args.output, args.input)
+    check_writable(args.output)
+    data = Path(args.input).read_bytes()
+    glb = compressed_glb_bytes(data)
+    atomic_write(args.output, glb)
+    print(f"{args.output}: {len(glb):,} bytes ({len(data):,} of them the .spc)")
     return EXIT_OK
 
 
@@ -204,6 +230,10 @@ def _add_serve(p: argparse.ArgumentParser) -> None:
                    "no limit)")
     p.add_argument("--log", action="store_true",
                    help="log every request on stderr (default: quiet)")
+    p.add_argument("--up", choices=["+x", "-x", "+y", "-y", "+z", "-z"], default=None,
+                   metavar="AXIS", help="the scene's up axis where the file does not store one (a "
+                   ".ply; an .spc says which way is up): one of +x -x +y -y +z -z, written as "
+                   "--up=+z (default: what the file says, else -y)")
 
 
 @command("serve", "serve the streaming web viewer and an .spc (with HTTP range requests)",
@@ -212,7 +242,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     from .serve import make_server, viewer_missing
 
     server = make_server([args.input], host=args.host, port=args.port,
-                         throttle_kbps=args.throttle, log=args.log)
+                         throttle_kbps=args.throttle, log=args.log, up=args.up)
     host, port = server.server_address[:2]
     shown = f"[{host}]" if ":" in host else host
     problem = viewer_missing()

@@ -13,9 +13,20 @@ The Khronos extension stores splats as one ``POINTS`` primitive whose attributes
   within a degree, so coefficient ``n`` of degree ``l >= 1`` is ``sh_rest[:, l*l - 1 + n]``, and
   degree 0 is ``sh_dc``.
 
-Coordinates are written as they are in the scene (no axis change and no node transform): the file
-holds exactly the decoded Gaussians, and a viewer places them as it places the PLY. The colour space
-is ``srgb_rec709_display``, the space 3DGS models are trained in.
+plus ``COLOR_0`` (VEC4 float: the view-independent colour ``0.5 + C0 * dc`` clamped to [0, 1]
+and the opacity), which viewers without the extension draw as coloured points.
+
+glTF is +Y up; a scene is stored in its own coordinates with its up axis in the file's metadata
+(``-y`` for COLMAP-derived scenes, the default when a file does not say). The Gaussians are written
+as they are, exactly the decoded values, and the node's rotation turns the scene's up into +Y, so
+a viewer shows it upright without any data being resampled (SH coefficients would need rotating).
+The colour space is ``srgb_rec709_display``, the space 3DGS models are trained in.
+
+:func:`compressed_glb_bytes` writes the other kind: the primitive declares the same attributes
+(accessors with counts but no data) and :data:`COMPRESSION` in the ``KHR_gaussian_splatting``
+object names a buffer view holding the ``.spc`` file itself, as
+``KHR_gaussian_splatting_compression_spz_2`` does for SPZ: a loader that knows the extension
+decodes the view; the layers of the ``.spc`` stream as in a plain ``.spc``.
 
 Only numpy and the standard library: the format layer stays free of the encoder's dependencies.
 """
@@ -28,11 +39,31 @@ import struct
 
 import numpy as np
 
-from .cloud import GaussianCloud
+from .cloud import SH_C0, GaussianCloud
 from .errors import UsageError
 from .fileio import atomic_write
 
+_UP_TO_Y = {  # glTF (x, y, z, w) quaternions turning each signed axis into +Y
+    "+y": (0.0, 0.0, 0.0, 1.0),
+    "-y": (1.0, 0.0, 0.0, 0.0),  # half a turn about x: y -> -y, z -> -z
+    "+z": (-0.5 ** 0.5, 0.0, 0.0, 0.5 ** 0.5),  # a quarter turn about x: z -> y
+    "-z": (0.5 ** 0.5, 0.0, 0.0, 0.5 ** 0.5),
+    "+x": (0.0, 0.0, 0.5 ** 0.5, 0.5 ** 0.5),  # a quarter turn about z: x -> y
+    "-x": (0.0, 0.0, -0.5 ** 0.5, 0.5 ** 0.5),
+}
+
+
+def up_rotation(up: str | None) -> tuple[float, float, float, float]:
+    """The node rotation (glTF x, y, z, w) that turns a scene's ``up`` axis into glTF's +Y;
+    ``None`` (a file that does not say) means ``-y``, the encoder's default."""
+    key = "-y" if up is None else ("+" + up if up[:1] not in "+-" else up).lower()
+    if key not in _UP_TO_Y:
+        raise UsageError(f"unknown up axis {up!r}: one of +x -x +y -y +z -z")
+    return _UP_TO_Y[key]
+
 EXTENSION = "KHR_gaussian_splatting"
+COMPRESSION = "SPCODEC_gaussian_splatting_compression_spc"
+"""Our vendor extension inside ``KHR_gaussian_splatting``: ``{"bufferView": N}``, the ``.spc``."""
 
 GLB_MAGIC = b"glTF"
 GLB_VERSION = 2
@@ -68,6 +99,8 @@ def splat_attributes(cloud: GaussianCloud) -> dict[str, np.ndarray]:
         f"{EXTENSION}:ROTATION": unit[:, [1, 2, 3, 0]],
         f"{EXTENSION}:SCALE": scales,
         f"{EXTENSION}:OPACITY": cloud.activated_opacity()[:, None],
+        "COLOR_0": np.concatenate([np.clip(0.5 + SH_C0 * cloud.sh_dc.astype(np.float64), 0, 1),
+                                   cloud.activated_opacity()[:, None]], axis=1),
         sh_attribute(0, 0): cloud.sh_dc,
     }
     for degree in range(1, cloud.sh_degree + 1):
@@ -76,45 +109,79 @@ def splat_attributes(cloud: GaussianCloud) -> dict[str, np.ndarray]:
     return {name: np.ascontiguousarray(a, dtype="<f4") for name, a in attributes.items()}
 
 
-def glb_bytes(cloud: GaussianCloud, generator: str | None = None) -> bytes:
-    """The whole ``.glb`` file for ``cloud``: a JSON chunk and one binary chunk."""
+def _accessor(name: str, array: np.ndarray) -> dict:
+    """An accessor of ``array`` (no data source yet); POSITION carries the bounds glTF needs."""
+    components = array.shape[1]
+    accessor = {"componentType": _FLOAT, "count": len(array),
+                "type": "SCALAR" if components == 1 else f"VEC{components}"}
+    if name == "POSITION":
+        accessor["min"] = [float(v) for v in array.min(axis=0)]
+        accessor["max"] = [float(v) for v in array.max(axis=0)]
+    return accessor
+
+
+def _document(attributes: dict[str, np.ndarray], up: str | None, splat: dict,
+              generator: str | None, required: list[str] = ()) -> dict:
     from . import __version__
 
+    node: dict = {"mesh": 0}
+    rotation = up_rotation(up)
+    if rotation != (0.0, 0.0, 0.0, 1.0):
+        node["rotation"] = list(rotation)
+    document = {
+        "asset": {"version": "2.0", "generator": generator or f"spcodec {__version__}"},
+        "extensionsUsed": [EXTENSION, *required],
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [node],
+        "meshes": [{"primitives": [{
+            "attributes": {name: i for i, name in enumerate(attributes)},
+            "mode": _POINTS,
+            "extensions": {EXTENSION: {"kernel": "ellipse", "colorSpace": "srgb_rec709_display",
+                                       **splat}},
+        }]}],
+        "accessors": [_accessor(name, array) for name, array in attributes.items()],
+    }
+    if required:
+        document["extensionsRequired"] = list(required)
+    return document
+
+
+def glb_bytes(cloud: GaussianCloud, up: str | None = None, generator: str | None = None) -> bytes:
+    """The whole ``.glb`` file for ``cloud`` (whose up axis is ``up``): a JSON chunk and one
+    binary chunk with every attribute."""
     attributes = splat_attributes(cloud)
-    accessors, views, blobs, offset = [], [], [], 0
-    for index, (name, array) in enumerate(attributes.items()):
-        components = array.shape[1]
-        accessor = {"bufferView": index, "componentType": _FLOAT, "count": len(array),
-                    "type": "SCALAR" if components == 1 else f"VEC{components}"}
-        if name == "POSITION":  # glTF requires bounds on POSITION
-            accessor["min"] = [float(v) for v in array.min(axis=0)]
-            accessor["max"] = [float(v) for v in array.max(axis=0)]
-        accessors.append(accessor)
+    document = _document(attributes, up, {}, generator)
+    views, blobs, offset = [], [], 0
+    for index, array in enumerate(attributes.values()):
+        document["accessors"][index]["bufferView"] = index
         views.append({"buffer": 0, "byteOffset": offset, "byteLength": array.nbytes,
                       "target": _ARRAY_BUFFER})
         blobs.append(array.tobytes())
         offset += array.nbytes  # float32 arrays keep every view 4-byte aligned
-    document = {
-        "asset": {"version": "2.0", "generator": generator or f"spcodec {__version__}"},
-        "extensionsUsed": [EXTENSION],
-        "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": [{"mesh": 0}],
-        "meshes": [{"primitives": [{
-            "attributes": {name: i for i, name in enumerate(attributes)},
-            "mode": _POINTS,
-            "extensions": {EXTENSION: {"kernel": "ellipse", "colorSpace": "srgb_rec709_display"}},
-        }]}],
-        "buffers": [{"byteLength": offset}],
-        "bufferViews": views,
-        "accessors": accessors,
-    }
+    document["buffers"] = [{"byteLength": offset}]
+    document["bufferViews"] = views
     return _pack_glb(json.dumps(document, separators=(",", ":")).encode(), b"".join(blobs))
 
 
-def write_glb(path: str | os.PathLike, cloud: GaussianCloud) -> None:
+def compressed_glb_bytes(spc: bytes, generator: str | None = None) -> bytes:
+    """A ``.glb`` whose splats are the ``.spc`` file ``spc`` itself (see the module docstring):
+    the accessors say what it decodes to (counts, types, the POSITION bounds glTF requires), the
+    one buffer view holds its bytes, and the node turns its up axis into +Y."""
+    from .decoder import decode_layers, inspect
+
+    cloud = decode_layers(spc).cloud
+    up = (inspect(spc).metadata or {}).get("up")
+    document = _document(splat_attributes(cloud), up, {"extensions": {COMPRESSION: {
+        "bufferView": 0}}}, generator, required=[COMPRESSION])
+    document["buffers"] = [{"byteLength": len(spc)}]
+    document["bufferViews"] = [{"buffer": 0, "byteOffset": 0, "byteLength": len(spc)}]
+    return _pack_glb(json.dumps(document, separators=(",", ":")).encode(), spc)
+
+
+def write_glb(path: str | os.PathLike, cloud: GaussianCloud, up: str | None = None) -> None:
     """Write ``cloud`` to ``path`` as a ``.glb`` with ``KHR_gaussian_splatting``, atomically."""
-    atomic_write(path, glb_bytes(cloud))
+    atomic_write(path, glb_bytes(cloud, up))
 
 
 def _pack_glb(json_bytes: bytes, binary: bytes) -> bytes:

@@ -117,6 +117,8 @@ class ServerConfig:
     web_root: Path
     link: Link
     log: bool = False
+    up: str | None = None
+    """The scene's up axis for files that do not store one (the page's ``up`` parameter)."""
 
 
 class ViewerRequestHandler(BaseHTTPRequestHandler):
@@ -141,7 +143,10 @@ class ViewerRequestHandler(BaseHTTPRequestHandler):
         path = urllib.parse.unquote(urllib.parse.urlsplit(self.path).path)
         if path == "/":
             first = next(iter(self.config.scenes))
-            query = urllib.parse.urlencode({"src": SCENE_PREFIX + first})
+            query = {"src": SCENE_PREFIX + first}
+            if self.config.up:
+                query["up"] = self.config.up
+            query = urllib.parse.urlencode(query)
             self._redirect(f"{VIEWER_PAGE}?{query}")
             return
         if path.startswith(SCENE_PREFIX) and path[len(SCENE_PREFIX):] in self.config.scenes:
@@ -252,7 +257,7 @@ def scene_names(paths: list[str | os.PathLike]) -> dict[str, Path]:
 
 def make_server(scenes: list[str | os.PathLike], host: str = "127.0.0.1", port: int = 0,
                 throttle_kbps: float | None = None, web_root: Path | None = None,
-                log: bool = False) -> ThreadingHTTPServer:
+                log: bool = False, up: str | None = None) -> ThreadingHTTPServer:
     """A threaded server for ``scenes`` (the first is the one ``/`` opens); ``port=0`` picks a free
     port (read it from ``server.server_address``). ``throttle_kbps`` is in kilobits per second."""
     if not scenes:
@@ -263,7 +268,7 @@ def make_server(scenes: list[str | os.PathLike], host: str = "127.0.0.1", port: 
         raise UsageError(f"--port must be 0..65535, got {port}")
     config = ServerConfig(
         scenes=scene_names(scenes), web_root=Path(web_root or default_web_root()),
-        link=Link(throttle_kbps * 1000 / 8 if throttle_kbps else None), log=log)
+        link=Link(throttle_kbps * 1000 / 8 if throttle_kbps else None), log=log, up=up)
     handler = type("Handler", (ViewerRequestHandler,), {"config": config})
     try:
         server = ThreadingHTTPServer((host, port), handler)

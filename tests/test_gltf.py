@@ -14,7 +14,7 @@ import spcodec
 from spcodec.cli import main
 from spcodec.cloud import GaussianCloud
 from spcodec.errors import UsageError
-from spcodec.gltf import EXTENSION, glb_bytes, sh_attribute, write_glb
+from spcodec.gltf import COMPRESSION, EXTENSION, glb_bytes, sh_attribute, write_glb
 
 pygltflib = pytest.importorskip("pygltflib", reason="pygltflib (dev extra) reads the GLB back")
 
@@ -53,9 +53,13 @@ def test_decoded_scene_round_trips_through_pygltflib(tmp_path, small_file):
     assert primitive["mode"] == 0  # POINTS
     assert primitive["extensions"][EXTENSION] == {"kernel": "ellipse",
                                                    "colorSpace": "srgb_rec709_display"}
-    expected = {"POSITION", f"{EXTENSION}:ROTATION", f"{EXTENSION}:SCALE", f"{EXTENSION}:OPACITY"}
+    expected = {"POSITION", f"{EXTENSION}:ROTATION", f"{EXTENSION}:SCALE", f"{EXTENSION}:OPACITY",
+                "COLOR_0"}
     expected |= {sh_attribute(d, n) for d in range(cloud.sh_degree + 1) for n in range(2 * d + 1)}
-    assert set(arrays) == expected and cloud.sh_degree == 3 and len(expected) == 4 + 16
+    assert set(arrays) == expected and cloud.sh_degree == 3 and len(expected) == 5 + 16
+    # viewers without the extension draw COLOR_0: the DC colour, clamped, with the opacity
+    colour = np.clip(0.5 + 0.28209479177387814 * cloud.sh_dc.astype(np.float64), 0, 1)
+    np.testing.assert_allclose(arrays["COLOR_0"][:, :3], colour, atol=1e-6)
 
     np.testing.assert_array_equal(arrays["POSITION"], cloud.means)
     position = document["accessors"][primitive["attributes"]["POSITION"]]
@@ -77,6 +81,56 @@ def test_decoded_scene_round_trips_through_pygltflib(tmp_path, small_file):
         for n in range(2 * degree + 1):
             np.testing.assert_array_equal(arrays[sh_attribute(degree, n)],
                                           cloud.sh_rest[:, degree * degree - 1 + n])
+
+
+@pytest.mark.parametrize("up, axis", [("-y", [0, -1, 0]), ("+z", [0, 0, 1]), ("+y", [0, 1, 0]),
+                                      ("-x", [-1, 0, 0]), (None, [0, -1, 0])])
+def test_the_node_turns_the_scene_up_axis_into_gltf_plus_y(small_file, up, axis):
+    """glTF is +Y up: the Gaussians stay as decoded, the node's rotation stands them upright
+    (a file that does not say is -y up, the encoder's default)."""
+    data = glb_bytes(spcodec.decode(small_file), up=up)
+    document = json.loads(data[20:20 + struct.unpack_from("<I", data, 12)[0]])
+    x, y, z, w = document["nodes"][0].get("rotation", [0, 0, 0, 1])
+    v = np.array(axis, float)
+    q = np.array([x, y, z])  # rotate v by the unit quaternion (x, y, z, w)
+    turned = v + 2 * w * np.cross(q, v) + 2 * np.cross(q, np.cross(q, v))
+    np.testing.assert_allclose(turned, [0, 1, 0], atol=1e-12)
+    assert np.isclose(x * x + y * y + z * z + w * w, 1.0)
+
+
+def test_decode_to_glb_reads_the_up_axis_the_file_stores(tmp_path, capsys):
+    from spcodec.synthetic import make_scene
+
+    ply, spc, glb = tmp_path / "s.ply", tmp_path / "s.spc", tmp_path / "s.glb"
+    spcodec.write_ply(ply, make_scene(1, curves=1, per_curve=40, blobs=100).cloud)
+    assert main(["encode", str(ply), "-o", str(spc), "--no-retrain", "--up=+z", "--quiet"]) == 0
+    assert main(["decode", str(spc), "-o", str(glb)]) == 0
+    document, _ = attributes_of(glb)
+    np.testing.assert_allclose(document["nodes"][0]["rotation"], [-0.5 ** 0.5, 0, 0, 0.5 ** 0.5])
+
+
+def test_a_compressed_glb_carries_the_spc_itself(tmp_path, capsys, small_file):
+    """SPCODEC_gaussian_splatting_compression_spc: the buffer view is the .spc byte for byte;
+    the accessors declare what it decodes to (no data of their own)."""
+    src, out = tmp_path / "s.spc", tmp_path / "s.glb"
+    src.write_bytes(small_file)
+    assert main(["embed", str(src), "-o", str(out)]) == 0
+    gltf = pygltflib.GLTF2().load(str(out))
+    document = json.loads(gltf.to_json())
+    assert COMPRESSION in document["extensionsUsed"] and document["extensionsRequired"] == \
+        [COMPRESSION]
+    splat = document["meshes"][0]["primitives"][0]["extensions"][EXTENSION]
+    view = document["bufferViews"][splat["extensions"][COMPRESSION]["bufferView"]]
+    blob = gltf.binary_blob()
+    assert blob[view.get("byteOffset", 0):][:view["byteLength"]] == small_file
+    cloud = spcodec.decode(small_file)
+    primitive = document["meshes"][0]["primitives"][0]
+    for index in primitive["attributes"].values():
+        accessor = document["accessors"][index]
+        assert "bufferView" not in accessor and accessor["count"] == len(cloud)
+    position = document["accessors"][primitive["attributes"]["POSITION"]]
+    np.testing.assert_allclose(position["min"], cloud.means.min(axis=0))
+    assert main(["embed", str(src), "-o", str(tmp_path / "s.gltf")]) == 2
 
 
 def test_glb_container_is_well_formed(small_file):

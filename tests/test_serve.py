@@ -203,3 +203,19 @@ def test_cli_serve_prints_a_url_that_serves_ranges_and_stops_on_ctrl_c(tmp_path)
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=10)
     assert proc.returncode == 0 and "stopped" in out and "Traceback" not in err
+
+
+def test_serve_up_reaches_the_page_for_files_that_do_not_store_it(tmp_path):
+    scene = tmp_path / "scene.ply"
+    scene.write_bytes(b"ply\n")
+    (tmp_path / "viewer").mkdir()
+    srv = make_server([scene], port=0, web_root=tmp_path, up="+z")
+    thread = threading.Thread(target=srv.serve_forever, daemon=True)
+    thread.start()
+    try:
+        response, _ = request(srv.server_address[:2], "/")
+        query = urllib.parse.parse_qs(urllib.parse.urlsplit(response.getheader("Location")).query)
+        assert query == {"src": ["/scenes/scene.ply"], "up": ["+z"]}
+    finally:
+        srv.shutdown()
+        srv.server_close()

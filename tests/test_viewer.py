@@ -223,3 +223,28 @@ def test_corrupt_file_is_reported_with_its_error_code(scene, tmp_path):
     state = report["state"]
     assert state["status"] == "error" and state["error"]["code"] == "section-crc"
     assert state["layersDecoded"] == 1  # layer 0 was decoded (and shown) before the bad layer
+
+
+def test_a_z_up_scene_stands_upright_from_the_axis_its_file_stores(tmp_path):
+    """The viewer showed z-up scenes from underneath: the encoder's --up was not stored. Now an
+    .spc made with --up=+z renders as its PLY does when told the PLY is z-up, and unlike the PLY
+    taken as -y up (the default for files that do not say)."""
+    require()
+    from spcodec.synthetic import make_scene
+
+    ply, spc, decoded = tmp_path / "z.ply", tmp_path / "z.spc", tmp_path / "z_decoded.ply"
+    spcodec.write_ply(ply, make_scene(seed=4, curves=4, per_curve=200, blobs=2500).cloud)
+    assert main(["encode", str(ply), "-o", str(spc), "--no-retrain", "--up=+z", "--quiet"]) == 0
+    assert main(["decode", str(spc), "-o", str(decoded)]) == 0
+    with serving([spc, decoded]) as base:
+        ours = visit(page_url(base, spc), ("complete", tmp_path / "spc.png"))
+        camera = ours["state"]["camera"]
+        told = visit(page_url(base, decoded, camera=camera, up="+z"),
+                     ("complete", tmp_path / "told.png"))
+        default = visit(page_url(base, decoded, camera=camera), ("complete", tmp_path / "dflt.png"))
+    assert ours["state"]["sceneUp"] == told["state"]["sceneUp"] == "+z"
+    assert default["state"]["sceneUp"] == "-y"
+    spc_image = image(tmp_path / "spc.png")
+    assert lit_share(spc_image) > 0.02
+    assert psnr(spc_image, image(tmp_path / "told.png")) >= PSNR_FLOOR_DB
+    assert psnr(spc_image, image(tmp_path / "dflt.png")) < 25

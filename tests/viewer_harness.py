@@ -65,9 +65,9 @@ def page_url(base: str, scene: Path, width: int = 320, height: int = 240,
              camera: dict | None = None, **extra) -> str:
     """The viewer's URL for ``scene`` (served under its file name), canvas only (no overlay)."""
     query = {"src": SCENE_PREFIX + scene.name, "width": width, "height": height, "capture": 1}
-    if camera:
+    if camera:  # the page's world is +Y up: a camera is its position, target and field of view
         query.update(cam=_joined(camera["position"]), target=_joined(camera["target"]),
-                     up=_joined(camera["up"]), fov=camera["fov"])
+                     fov=camera["fov"])
     query.update(extra)
     return f"{base}{VIEWER_PAGE}?{urllib.parse.urlencode(query)}"
 

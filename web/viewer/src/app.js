@@ -6,7 +6,12 @@
 //   src=URL            the scene (.spc streams; .ply and .glb load whole)
 //   maxLayer=K         fetch and show layers 0..K only (.spc)
 //   width=W&height=H   fixed canvas resolution (default: fill the window)
-//   cam=x,y,z&target=x,y,z&up=x,y,z&fov=DEG   camera (default: framed on the first layer, -y up)
+//   cam=x,y,z&target=x,y,z&fov=DEG   camera, in the upright world (+Y up; default: framed on the
+//                      first layer)
+//   up=AXIS            the scene's up axis where the file does not store one (a PLY, an older
+//                      .spc): -y (default, COLMAP-derived scenes), +z, or a vector such as 0,0,1.
+//                      Every scene is stood upright in a +Y-up world: an .spc by the axis its
+//                      metadata stores, a .glb by its node's rotation (glTF is +Y up).
 //   capture=1          no overlay, and keep the frame of the first picture (tests, benchmark)
 //
 // Progress is shown on the page and kept in `window.spcViewer` (see `state` below), which the
@@ -16,7 +21,7 @@ import * as pc from 'playcanvas';
 import { browserDraco } from './draco-browser.js';
 import { createApp, frameWatcher } from './engine.js';
 import { streamSpc } from './ranges.js';
-import { frameBounds, robustBounds, toGSplatData } from './splats.js';
+import { frameBounds, robustBounds, rotatePositions, toGSplatData, upRotation } from './splats.js';
 
 const params = new URLSearchParams(location.search);
 const src = params.get('src');
@@ -44,7 +49,8 @@ const state = {
   layersInFirstPicture: null,
   bytesWhenFirstPictureShown: null,
   renderer: null,
-  camera: null,  // {position, target, up, fov} once placed: pass it back in the URL to reproduce a view
+  camera: null,  // {position, target, fov} once placed: pass it back in the URL to reproduce a view
+  sceneUp: null,  // the scene's up axis as used (stored in the file, from the URL, or the default)
 };
 window.spcViewer = state;
 
@@ -104,11 +110,12 @@ function createCamera(app) {
   return camera;
 }
 
-/** Point `camera` as the URL says, or frame `positions` when the URL gives no camera. */
+/** Point `camera` as the URL says, or frame `positions` (in the upright world) when the URL gives
+ * no camera. The world is +Y up: scenes are stood upright before they are shown. */
 function placeCamera(camera, positions) {
   const position = numbers('cam', 3);
   const target = numbers('target', 3);
-  const up = numbers('up', 3) ?? [0, -1, 0];
+  const up = [0, 1, 0];
   const fov = Number(params.get('fov')) || 50;
   let view;
   if (position && target) {
@@ -118,7 +125,7 @@ function placeCamera(camera, positions) {
     if (!bounds) return false;
     view = frameBounds(bounds, up, fov);
   }
-  state.camera = view;
+  state.camera = { position: view.position, target: view.target, fov: view.fov };
   const distance = Math.hypot(...view.position.map((p, i) => p - view.target[i]));
   camera.camera.fov = view.fov;
   camera.camera.nearClip = Math.max(distance * 1e-3, 1e-4);
@@ -165,6 +172,7 @@ async function showSpc(app, camera, whenShown) {
   }
   const decoder = new spc.StreamDecoder();
   let placed = false;
+  let upright = null;  // the rotation standing the scene upright, once the metadata is read
   const shown = [];
 
   const addLayer = (layer) => {
@@ -175,9 +183,10 @@ async function showSpc(app, camera, whenShown) {
     state.layersDecoded = layer.index + 1;
     state.gaussians += cloud.count;
     if (cloud.count > 0) {
-      if (!placed) placed = placeCamera(camera, cloud.positions);
+      if (!placed) placed = placeCamera(camera, rotatePositions(cloud.positions, upright));
       const entity = new pc.Entity(`layer ${layer.index}`);
       entity.addComponent('gsplat', { resource: new pc.GSplatResource(app.graphicsDevice, toGSplatData(pc, cloud)) });
+      entity.setLocalRotation(new pc.Quat(...upright));
       app.root.addChild(entity);
     }
     const ready = cloud.count > 0 ? whenShown() : Promise.resolve();
@@ -208,6 +217,8 @@ async function showSpc(app, camera, whenShown) {
     planLayers: (head) => {
       const info = spc.inspect(head);  // the `spcodec info --json` document
       state.layerCount = info.layers.length;
+      state.sceneUp = info.metadata?.up ?? params.get('up') ?? '-y';
+      upright = upRotation(state.sceneUp);
       // end_offset: in the stored file (for a gzip wrapper, null unless it records them)
       return { layers: info.layers.map((l) => ({ index: l.index, endOffset: l.end_offset })) };
     },
@@ -243,22 +254,39 @@ async function showAsset(app, camera, whenShown) {
     asset.once('error', (message) => reject(new Error(String(message))));
     app.assets.load(asset);
   });
-  let entity, resources;
-  if (type === 'gsplat') {
+  let entity, resources, upright;
+  if (type === 'gsplat') {  // a PLY stores no up axis: the URL's, else -y
+    state.sceneUp = params.get('up') ?? '-y';
+    upright = upRotation(state.sceneUp);
     entity = new pc.Entity('scene');
     entity.addComponent('gsplat', { asset });
+    entity.setLocalRotation(new pc.Quat(...upright));
     resources = [asset.resource];
-  } else {
+  } else {  // glTF is +Y up: its node's rotation stands the scene upright
+    state.sceneUp = 'glTF node';
     entity = asset.resource.instantiateRenderEntity();
     resources = (asset.resource.gsplats ?? []).map((a) => a.resource);
   }
   if (!resources.length) throw new Error(`${src} holds no Gaussian splats PlayCanvas can show`);
   state.gaussians = resources.reduce((sum, r) => sum + r.gsplatData.numSplats, 0);
-  placeCamera(camera, resources[0].centers ?? resources[0].gsplatData.getCenters());
   app.root.addChild(entity);
+  const centres = resources[0].centers ?? resources[0].gsplatData.getCenters();
+  placeCamera(camera, worldPositions(centres, upright ?? nodeRotation(entity)));
   await whenShown();
   state.tFirstPicture = now();
   state.bytesAtFirstPicture = state.bytesLoaded;
+}
+
+/** The rotation of the first entity under `root` that draws splats (a glTF's node). */
+function nodeRotation(root) {
+  const node = root.findComponents('gsplat')[0]?.entity ?? root;
+  const q = node.getRotation();
+  return [q.x, q.y, q.z, q.w];
+}
+
+function worldPositions(centres, rotation) {
+  return rotatePositions(centres instanceof Float32Array ? centres : Float32Array.from(centres),
+    rotation);
 }
 
 // ------------------------------------------------------------------------------- main

@@ -222,6 +222,7 @@ def test_corrupt_file_is_reported_with_its_error_code(scene, tmp_path):
                          "timeoutMs": 60000}])[0]
     state = report["state"]
     assert state["status"] == "error" and state["error"]["code"] == "section-crc"
+    assert state["error"]["line"].count("section-crc") == 1  # it was shown twice
     assert state["layersDecoded"] == 1  # layer 0 was decoded (and shown) before the bad layer
 
 

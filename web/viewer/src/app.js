@@ -87,9 +87,16 @@ function showProgress() {
   lines.push(`Gaussians: ${state.gaussians.toLocaleString('en')}`);
   if (state.tFirstPicture != null) lines.push(`first picture: ${(state.tFirstPicture / 1000).toFixed(2)} s`);
   if (state.tComplete != null) lines.push(`complete: ${(state.tComplete / 1000).toFixed(2)} s`);
-  if (state.error) lines.push(`error: ${state.error.code ? `[${state.error.code}] ` : ''}${state.error.message}`);
+  if (state.error) lines.push(`error: ${errorLine(state.error)}`);
   hud.textContent = lines.join('\n');
   hud.dataset.status = state.status;
+}
+
+/** One line for an error: the decoder's messages already end with their [code]; others get it
+ * once, in front. */
+export function errorLine(error) {
+  const tagged = error.code && !error.message.endsWith(`[${error.code}]`);
+  return `${tagged ? `[${error.code}] ` : ''}${error.message}`;
 }
 
 function numbers(name, count) {
@@ -310,6 +317,7 @@ async function main() {
 main().catch((error) => {
   state.status = 'error';
   state.error = { code: error.code ?? null, name: error.name, message: error.message };
+  state.error.line = errorLine(state.error);  // what the page shows
   showProgress();
   console.error(error);
 });

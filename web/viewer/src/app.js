@@ -20,8 +20,9 @@
 import * as pc from 'playcanvas';
 import { browserDraco } from './draco-browser.js';
 import { createApp, frameWatcher } from './engine.js';
-import { streamSpc } from './ranges.js';
-import { frameBounds, robustBounds, rotatePositions, toGSplatData, upRotation } from './splats.js';
+import { streamSpc } from '../../src/ranges.js';
+import { rotatePositions, upRotation } from '../../src/orientation.js';
+import { frameBounds, robustBounds, toGSplatData } from './splats.js';
 
 const params = new URLSearchParams(location.search);
 const src = params.get('src');

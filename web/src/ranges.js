@@ -9,7 +9,12 @@
 // layer ends ([R-83]; `inspect` reports those offsets), else read as one stream, as is a file from
 // a server that ignores ranges (200 instead of 206).
 //
+// An .spc embedded in a .glb (`spcodec embed`) streams the same way from where it lies in the file
+// (`streamScene`): its offset comes from the .glb's header and JSON chunk.
+//
 // Nothing here touches the DOM or the renderer: it runs under node with a fake fetch in the tests.
+
+import { GLB_PREAMBLE_BYTES, jsonEnd, locateSpc } from './glb.js';
 
 /** Bytes asked for first: the header block of files with up to about 90 sections (a longer one
  * takes a second request). Small, so that layer 0 arrives with a request of its own. */
@@ -50,18 +55,21 @@ export function parseContentRange(header) {
  * @returns {Promise<{mode: 'ranges'|'stream', fileSize: number|null, bytes: number}>}
  */
 export async function streamSpc(url, { sink, planLayers, maxLayer = Infinity, fetchImpl = fetch,
-  onRequest = () => {} }) {
-  const first = await request(fetchImpl, url, 0, FIRST_REQUEST_BYTES - 1, onRequest);
-  if (first.status === 200) {
-    return { mode: 'stream', fileSize: lengthOf(first), bytes: await pump(first, sink, Infinity) };
+  onRequest = () => {}, base = 0, length = null }) {
+  const fetchRange = (from, to, log) => request(fetchImpl, url, from, to, log, base);
+  const firstLast = Math.min(FIRST_REQUEST_BYTES, length ?? Infinity) - 1;
+  const first = await fetchRange(0, firstLast, onRequest);
+  if (first.status === 200) {  // the server ignores ranges: the whole file comes
+    const bytes = await pump(first, sink, length ?? Infinity, base);
+    return { mode: 'stream', fileSize: length ?? lengthOf(first), bytes };
   }
-  const { size } = first.range;
+  const size = length ?? first.range.size;
   let head = await readAll(first);
   const gzip = head.length >= 2 && head[0] === GZIP_MAGIC[0] && head[1] === GZIP_MAGIC[1];
   if (!gzip && head.length >= FIXED_HEADER_BYTES) {
     const headerSize = new DataView(head.buffer, head.byteOffset, head.byteLength).getUint32(16, true);
     if (headerSize > head.length && headerSize <= size) {  // an unusually long header block
-      const more = await readAll(await request(fetchImpl, url, head.length, headerSize - 1, onRequest));
+      const more = await readAll(await fetchRange(head.length, headerSize - 1, onRequest));
       head = concat(head, more);
     }
   }
@@ -77,38 +85,60 @@ export async function streamSpc(url, { sink, planLayers, maxLayer = Infinity, fe
     // No layer ends (a gzip wrapper without recorded layer offsets, or bytes the decoder will
     // reject): read the rest as one stream.
     if (offset < size) {
-      offset += await pump(await request(fetchImpl, url, offset, size - 1, onRequest), sink, Infinity);
+      offset += await pump(await fetchRange(offset, size - 1, onRequest), sink, Infinity);
     }
     return { mode: 'stream', fileSize: size, bytes: offset };
   }
   for (const layer of layers) {
     if (layer.index > maxLayer) break;
     if (layer.endOffset <= offset) continue;  // already received with the first request
-    const response = await request(fetchImpl, url, offset, layer.endOffset - 1, onRequest);
+    const response = await fetchRange(offset, layer.endOffset - 1, onRequest);
     offset += await pump(response, sink, layer.endOffset - offset);
   }
   if (maxLayer >= layers.length - 1 && offset < size) {
     // bytes after the last layer: a gzip wrapper's end and trailer, whose CRC the decoder checks
-    offset += await pump(await request(fetchImpl, url, offset, size - 1, onRequest), sink, Infinity);
+    offset += await pump(await fetchRange(offset, size - 1, onRequest), sink, Infinity);
   }
   return { mode: 'ranges', fileSize: size, bytes: offset };
 }
 
-async function request(fetchImpl, url, first, last, onRequest) {
-  const headers = { Range: `bytes=${first}-${last}` };
+/** Bytes `first..last` of the stream that starts at byte `base` of the file at `url`. Offsets
+ * in the answer and in `onRequest` are the file's. */
+async function request(fetchImpl, url, first, last, onRequest, base = 0) {
+  const [from, to] = [base + first, base + last];
+  const headers = { Range: `bytes=${from}-${to}` };
   const response = await fetchImpl(url, { headers, cache: 'no-store' });
   const range = parseContentRange(response.headers.get('Content-Range'));
-  onRequest({ first, last, status: response.status, contentRange: range });
+  onRequest({ first: from, last: to, status: response.status, contentRange: range });
   if (response.status === 206) {
-    if (!range || range.first !== first || range.last > last) {
-      throw new TransferError(`${url}: the server answered bytes ${first}-${last} with ` +
+    if (!range || range.first !== from || range.last > to) {
+      throw new TransferError(`${url}: the server answered bytes ${from}-${to} with ` +
         `Content-Range ${response.headers.get('Content-Range')}`);
     }
     response.range = range;
     return response;
   }
   if (response.status === 200 && first === 0) return response;
-  throw new TransferError(`${url}: HTTP ${response.status} for bytes ${first}-${last}`);
+  throw new TransferError(`${url}: HTTP ${response.status} for bytes ${from}-${to}`);
+}
+
+/**
+ * Stream the .spc at `url`, or the one a .glb embeds (`spcodec embed`; told by the URL's .glb
+ * extension): as {@link streamSpc}, after reading the .glb's header and JSON chunk for where the
+ * .spc lies. Resolves with what streamSpc does and the glTF node's `rotation` (x, y, z, w; null
+ * for a plain .spc, whose up axis is in its metadata).
+ * @param {string} url
+ * @param {Parameters<typeof streamSpc>[1]} options
+ */
+export async function streamScene(url, options) {
+  const path = new URL(url, 'http://x/').pathname.toLowerCase();
+  if (!path.endsWith('.glb')) return { ...(await streamSpc(url, options)), rotation: null };
+  const { fetchImpl = fetch, onRequest = () => {} } = options;
+  const preamble = await readAll(await request(fetchImpl, url, 0, GLB_PREAMBLE_BYTES - 1, onRequest));
+  const head = await readAll(await request(fetchImpl, url, 0, jsonEnd(preamble) - 1, onRequest));
+  const where = locateSpc(head.subarray(0, jsonEnd(preamble)));
+  const result = await streamSpc(url, { ...options, base: where.offset, length: where.length });
+  return { ...result, rotation: where.rotation };
 }
 
 function lengthOf(response) {
@@ -116,17 +146,24 @@ function lengthOf(response) {
   return Number.isFinite(length) && length > 0 ? length : null;
 }
 
-/** Send a response's body to `sink` chunk by chunk, at most `limit` bytes; returns the count. */
-async function pump(response, sink, limit) {
+/** Send a response's body to `sink` chunk by chunk, at most `limit` bytes after the first `skip`;
+ * returns the count sent. */
+async function pump(response, sink, limit, skip = 0) {
   let count = 0;
   let finished = false;
   const reader = response.body.getReader();
   try {
     while (count < limit) {
-      const { done, value } = await reader.read();
+      let { done, value } = await reader.read();
       if (done) {
         finished = true;
         break;
+      }
+      if (skip > 0) {
+        const dropped = Math.min(skip, value.length);
+        value = value.subarray(dropped);
+        skip -= dropped;
+        if (!value.length) continue;
       }
       const chunk = value.length > limit - count ? value.subarray(0, limit - count) : value;
       count += chunk.length;

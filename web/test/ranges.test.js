@@ -162,3 +162,57 @@ test('parseContentRange', () => {
   assert.equal(parseContentRange('bytes */1000'), null);
   assert.equal(parseContentRange(null), null);
 });
+
+/** A .glb as `spcodec embed` writes it: header, JSON chunk naming the .spc's buffer view, and the
+ * binary chunk with `spc` at `padding` bytes into it. */
+function fakeGlb(spc, padding = 16) {
+  const json = new TextEncoder().encode(JSON.stringify({
+    asset: { version: '2.0' }, nodes: [{ mesh: 0, rotation: [1, 0, 0, 0] }],
+    meshes: [{ primitives: [{ attributes: {}, mode: 0, extensions: { KHR_gaussian_splatting: {
+      extensions: { SPCODEC_gaussian_splatting_compression_spc: { bufferView: 0 } } } } }] }],
+    buffers: [{ byteLength: padding + spc.length }],
+    bufferViews: [{ buffer: 0, byteOffset: padding, byteLength: spc.length }],
+  }));
+  const jsonPadded = new Uint8Array(Math.ceil(json.length / 4) * 4).fill(0x20);
+  jsonPadded.set(json);
+  const binLength = Math.ceil((padding + spc.length) / 4) * 4;
+  const file = new Uint8Array(12 + 8 + jsonPadded.length + 8 + binLength);
+  const view = new DataView(file.buffer);
+  view.setUint32(0, 0x46546c67, true); view.setUint32(4, 2, true); view.setUint32(8, file.length, true);
+  view.setUint32(12, jsonPadded.length, true); view.setUint32(16, 0x4e4f534a, true);
+  file.set(jsonPadded, 20);
+  const bin = 20 + jsonPadded.length;
+  view.setUint32(bin, binLength, true); view.setUint32(bin + 4, 0x004e4942, true);
+  file.set(spc, bin + 8 + padding);
+  return file;
+}
+
+test('an .spc inside a .glb streams by ranges from where it lies, with the node rotation', async () => {
+  const { streamScene } = await import('../src/ranges.js');
+  const ends = [60_000, 90_000, 200_000];
+  const spc = fakeFile(300, ends);
+  const glb = fakeGlb(spc);
+  for (const ranges of [true, false]) {
+    const { fetchImpl, log } = fakeServer(glb, { ranges });
+    const out = collector();
+    const result = await streamScene('/scene.glb', { sink: out.sink, planLayers: plan(ends), fetchImpl });
+    assert.ok(Buffer.from(spc).equals(out.bytes()), `every byte of the .spc, once (ranges: ${ranges})`);
+    assert.deepEqual(result.rotation, [1, 0, 0, 0]);
+    assert.equal(result.fileSize, spc.length);
+    if (ranges) {
+      const start = glb.length - Math.ceil((16 + spc.length) / 4) * 4 + 16;
+      assert.deepEqual(log.slice(-3), [[start + FIRST_REQUEST_BYTES, start + 59_999],
+        [start + 60_000, start + 89_999], [start + 90_000, start + 199_999]]);
+    }
+  }
+});
+
+test('a .glb without the embedded .spc is refused in one line', async () => {
+  const { streamScene } = await import('../src/ranges.js');
+  const other = fakeGlb(new Uint8Array(8));
+  const name = Buffer.from(other).indexOf('SPCODEC_');
+  other.set(new TextEncoder().encode('ELSEWHO_'), name);  // another vendor's extension
+  const { fetchImpl } = fakeServer(other);
+  await assert.rejects(streamScene('/x.glb', { sink: async () => {}, planLayers: plan([8]), fetchImpl }),
+    (err) => err.code === 'bad-glb' && /holds no SPCODEC_gaussian_splatting_compression_spc/.test(err.message));
+});

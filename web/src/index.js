@@ -7,3 +7,5 @@ export { SpcError, ERROR_CODES } from './errors.js';
 export { DEFAULT_LIMITS } from './limits.js';
 export { configureDraco } from './draco.js';
 export { plyBytes } from './ply.js';
+export { streamLayers } from './stream.js';
+export { upRotation, rotatePositions } from './orientation.js';

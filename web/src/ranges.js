@@ -125,8 +125,9 @@ async function request(fetchImpl, url, first, last, onRequest, base = 0) {
 /**
  * Stream the .spc at `url`, or the one a .glb embeds (`spcodec embed`; told by the URL's .glb
  * extension): as {@link streamSpc}, after reading the .glb's header and JSON chunk for where the
- * .spc lies. Resolves with what streamSpc does and the glTF node's `rotation` (x, y, z, w; null
- * for a plain .spc, whose up axis is in its metadata).
+ * .spc lies (told to `options.onGlb(where)` before any of it streams). Resolves with what
+ * streamSpc does and the glTF node's `rotation` (x, y, z, w; null for a plain .spc, whose up axis
+ * is in its metadata).
  * @param {string} url
  * @param {Parameters<typeof streamSpc>[1]} options
  */
@@ -137,6 +138,7 @@ export async function streamScene(url, options) {
   const preamble = await readAll(await request(fetchImpl, url, 0, GLB_PREAMBLE_BYTES - 1, onRequest));
   const head = await readAll(await request(fetchImpl, url, 0, jsonEnd(preamble) - 1, onRequest));
   const where = locateSpc(head.subarray(0, jsonEnd(preamble)));
+  options.onGlb?.(where);
   const result = await streamSpc(url, { ...options, base: where.offset, length: where.length });
   return { ...result, rotation: where.rotation };
 }

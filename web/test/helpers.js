@@ -151,3 +151,55 @@ export async function checkInput(data, r, what) {
   }
   return whole.code;
 }
+
+/** A fake `fetch` serving `file` with single byte ranges, as `spcodec serve` does. */
+export function fakeServer(file, { ranges = true, chunk = 1000 } = {}) {
+  const log = [];
+  const fetchImpl = async (url, { headers }) => {
+    const match = /^bytes=(\d+)-(\d+)$/.exec(headers.Range);
+    let first = Number(match[1]);
+    let last = Math.min(Number(match[2]), file.length - 1);
+    let status = 206;
+    if (!ranges) {
+      first = 0;
+      last = file.length - 1;
+      status = 200;
+    }
+    log.push([first, last]);
+    const body = file.subarray(first, last + 1);
+    const h = new Headers({ 'Content-Length': String(body.length) });
+    if (status === 206) h.set('Content-Range', `bytes ${first}-${last}/${file.length}`);
+    const stream = new ReadableStream({
+      start(controller) {
+        for (let i = 0; i < body.length; i += chunk) controller.enqueue(body.slice(i, i + chunk));
+        controller.close();
+      },
+    });
+    return new Response(stream, { status, headers: h });
+  };
+  return { fetchImpl, log };
+}
+
+/** A .glb as `spcodec embed` writes it: header, JSON chunk naming the .spc's buffer view, and the
+ * binary chunk with `spc` at `padding` bytes into it. */
+export function fakeGlb(spc, padding = 16) {
+  const json = new TextEncoder().encode(JSON.stringify({
+    asset: { version: '2.0' }, nodes: [{ mesh: 0, rotation: [1, 0, 0, 0] }],
+    meshes: [{ primitives: [{ attributes: {}, mode: 0, extensions: { KHR_gaussian_splatting: {
+      extensions: { SPCODEC_gaussian_splatting_compression_spc: { bufferView: 0 } } } } }] }],
+    buffers: [{ byteLength: padding + spc.length }],
+    bufferViews: [{ buffer: 0, byteOffset: padding, byteLength: spc.length }],
+  }));
+  const jsonPadded = new Uint8Array(Math.ceil(json.length / 4) * 4).fill(0x20);
+  jsonPadded.set(json);
+  const binLength = Math.ceil((padding + spc.length) / 4) * 4;
+  const file = new Uint8Array(12 + 8 + jsonPadded.length + 8 + binLength);
+  const view = new DataView(file.buffer);
+  view.setUint32(0, 0x46546c67, true); view.setUint32(4, 2, true); view.setUint32(8, file.length, true);
+  view.setUint32(12, jsonPadded.length, true); view.setUint32(16, 0x4e4f534a, true);
+  file.set(jsonPadded, 20);
+  const bin = 20 + jsonPadded.length;
+  view.setUint32(bin, binLength, true); view.setUint32(bin + 4, 0x004e4942, true);
+  file.set(spc, bin + 8 + padding);
+  return file;
+}

@@ -20,9 +20,8 @@
 import * as pc from 'playcanvas';
 import { browserDraco } from './draco-browser.js';
 import { createApp, frameWatcher } from './engine.js';
-import { streamSpc } from '../../src/ranges.js';
 import { rotatePositions, upRotation } from '../../src/orientation.js';
-import { frameBounds, robustBounds, toGSplatData } from './splats.js';
+import { frameBounds, robustBounds } from './splats.js';
 
 const params = new URLSearchParams(location.search);
 const src = params.get('src');
@@ -173,29 +172,24 @@ function orbit(camera, view) {
 // ------------------------------------------------------------------------------- the scenes
 async function showSpc(app, camera, whenShown) {
   const spc = await import('../../src/index.js');
+  const { loadSpc } = await import('../../loaders/playcanvas.js');
   spc.configureDraco(browserDraco());
   const maxLayer = params.has('maxLayer') ? Number(params.get('maxLayer')) : Infinity;
   if (!(Number.isInteger(maxLayer) && maxLayer >= 0) && maxLayer !== Infinity) {
     throw new Error(`URL parameter maxLayer must be a layer number (0, 1, ...), got "${params.get('maxLayer')}"`);
   }
-  const decoder = new spc.StreamDecoder();
   let placed = false;
-  let upright = null;  // the rotation standing the scene upright, once the metadata is read
   const shown = [];
 
-  const addLayer = (layer) => {
+  const addLayer = (layer) => {  // its entity is in the scene already (the loader added it)
     const cloud = layer.cloud;
     const event = { index: layer.index, kind: layer.kind, gaussians: cloud.count,
-      bytesLoaded: state.bytesLoaded, tDecoded: now(), tShown: null };
+      bytesLoaded: layer.bytesLoaded, tDecoded: now(), tShown: null };
     state.events.push(event);
     state.layersDecoded = layer.index + 1;
     state.gaussians += cloud.count;
-    if (cloud.count > 0) {
-      if (!placed) placed = placeCamera(camera, rotatePositions(cloud.positions, upright));
-      const entity = new pc.Entity(`layer ${layer.index}`);
-      entity.addComponent('gsplat', { resource: new pc.GSplatResource(app.graphicsDevice, toGSplatData(pc, cloud)) });
-      entity.setLocalRotation(new pc.Quat(...upright));
-      app.root.addChild(entity);
+    if (cloud.count > 0 && !placed) {
+      placed = placeCamera(camera, rotatePositions(cloud.positions, layer.rotation));
     }
     const ready = cloud.count > 0 ? whenShown() : Promise.resolve();
     shown.push(ready.then(() => {
@@ -216,36 +210,33 @@ async function showSpc(app, camera, whenShown) {
     showProgress();
   };
 
-  const result = await streamSpc(src, {
-    maxLayer,
-    onRequest: (r) => {
-      state.requests.push({ first: r.first, last: r.last, status: r.status, t: now() });
-      state.totalBytes = state.totalBytes ?? r.contentRange?.size ?? null;
-    },
-    planLayers: (head) => {
-      const info = spc.inspect(head);  // the `spcodec info --json` document
-      state.layerCount = info.layers.length;
-      state.sceneUp = info.metadata?.up ?? params.get('up') ?? '-y';
-      upright = upRotation(state.sceneUp);
-      // end_offset: in the stored file (for a gzip wrapper, null unless it records them)
-      return { layers: info.layers.map((l) => ({ index: l.index, endOffset: l.end_offset })) };
-    },
-    sink: async (chunk) => {
-      state.bytesLoaded += chunk.length;
-      showProgress();
-      for (const layer of await decoder.push(chunk)) {
-        if (layer.index <= maxLayer) addLayer(layer);
-      }
-    },
-  });
+  const result = await streamLayersInto(loadSpc, app, maxLayer, addLayer);
   state.mode = result.mode;
   state.totalBytes = state.totalBytes ?? result.fileSize;
   if (Number.isFinite(maxLayer)) {
     state.layerCount = Math.min(state.layerCount ?? Infinity, maxLayer + 1);
-  } else {
-    await decoder.close();
   }
   await Promise.all(shown);
+}
+
+/** The package's PlayCanvas loader, with the page's bookkeeping of requests and bytes. */
+async function streamLayersInto(loadSpc, app, maxLayer, addLayer) {
+  return loadSpc(app, pc, src, {
+    maxLayer, up: params.get('up'),
+    onRequest: (r) => {
+      state.requests.push({ first: r.first, last: r.last, status: r.status, t: now() });
+      state.totalBytes = state.totalBytes ?? r.contentRange?.size ?? null;
+    },
+    onInfo: (info) => {
+      state.layerCount = info.layers.length;
+      state.sceneUp = info.metadata?.up ?? params.get('up') ?? '-y';
+    },
+    onProgress: (bytes) => {
+      state.bytesLoaded = bytes;
+      showProgress();
+    },
+    onLayer: addLayer,
+  });
 }
 
 async function showAsset(app, camera, whenShown) {
@@ -297,6 +288,21 @@ function worldPositions(centres, rotation) {
     rotation);
 }
 
+/** Whether the .glb at `url` carries an .spc (`spcodec embed`) rather than glTF accessors: read
+ * from its header and JSON chunk (two small range requests). */
+async function embedsSpc(url) {
+  const { GLB_PREAMBLE_BYTES, jsonEnd, locateSpc } = await import('../../src/glb.js');
+  const bytes = async (last) => new Uint8Array(await (await fetch(url, {
+    headers: { Range: `bytes=0-${last}` } })).arrayBuffer());
+  try {
+    locateSpc((await bytes(jsonEnd(await bytes(GLB_PREAMBLE_BYTES - 1)) - 1)));
+    return true;
+  } catch (error) {
+    if (error.code === 'bad-glb' && /holds no SPCODEC/.test(error.message)) return false;
+    throw error;
+  }
+}
+
 // ------------------------------------------------------------------------------- main
 async function main() {
   showProgress();
@@ -308,6 +314,7 @@ async function main() {
   const whenShown = frameWatcher(app);
   state.status = 'loading';
   state.tStart = performance.now();
+  if (state.kind === 'glb' && await embedsSpc(src)) state.kind = 'spc';  // `spcodec embed`
   if (state.kind === 'spc') await showSpc(app, camera, whenShown);
   else await showAsset(app, camera, whenShown);
   state.tComplete = now();

@@ -2,7 +2,8 @@
 
 import assert from 'node:assert/strict';
 import test from 'node:test';
-import { frameBounds, plyProperties, robustBounds } from '../src/splats.js';
+import { plyProperties } from '../../loaders/playcanvas.js';
+import { frameBounds, robustBounds } from '../src/splats.js';
 
 test('plyProperties splits interleaved arrays and writes f_rest channel-major', () => {
   const n = 2, shDegree = 1, k = 3;

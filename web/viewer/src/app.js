@@ -18,7 +18,7 @@
 // browser tests and the benchmark read.
 
 import * as pc from 'playcanvas';
-import { browserDraco } from './draco-browser.js';
+import { browserDraco } from '../../src/draco-browser.js';
 import { createApp, frameWatcher } from './engine.js';
 import { rotatePositions, upRotation } from '../../src/orientation.js';
 import { frameBounds, robustBounds } from './splats.js';

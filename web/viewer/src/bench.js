@@ -3,7 +3,7 @@
 
 import * as pc from 'playcanvas';
 import { configureDraco, decode } from '../../src/index.js';
-import { browserDraco } from './draco-browser.js';
+import { browserDraco } from '../../src/draco-browser.js';
 import { createApp } from './engine.js';
 import { toGSplatData } from './splats.js';
 

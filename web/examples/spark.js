@@ -1,0 +1,101 @@
+// An .spc in a three.js app rendered by Spark: `loadSpc` streams its layers into SplatMeshes.
+//
+// URL parameters: src (an .spc, or a .glb written by `spcodec embed`), width/height,
+// cam/target/fov (camera, in the upright +Y world), up (the scene's up axis where the file does
+// not say), ply=1 (load `src` as a PLY with Spark's own loader instead, for comparison),
+// capture=1. `window.spcViewer` holds the progress the browser tests read.
+
+import { SparkRenderer, SplatMesh } from '@sparkjsdev/spark';
+import { configureDraco, rotatePositions, upRotation } from 'spcodec';
+import { browserDraco } from 'spcodec/draco-browser';
+import { loadSpc } from 'spcodec/spark';
+import * as THREE from 'three';
+
+const params = new URLSearchParams(location.search);
+const state = { status: 'loading', layersShown: 0, gaussians: 0, tFirstPicture: null, camera: null,
+  error: null };
+window.spcViewer = state;
+const canvas = document.getElementById('scene');
+const say = (text) => { document.getElementById('status').textContent = text; };
+
+function frame(positions, fov) {
+  const cam = params.get('cam')?.split(',').map(Number);
+  const target = params.get('target')?.split(',').map(Number);
+  if (cam && target) return { position: cam, target };
+  const lo = [Infinity, Infinity, Infinity], hi = [-Infinity, -Infinity, -Infinity];
+  for (let i = 0; i < positions.length; i += 3) for (let a = 0; a < 3; a++) {
+    lo[a] = Math.min(lo[a], positions[i + a]);
+    hi[a] = Math.max(hi[a], positions[i + a]);
+  }
+  const centre = lo.map((v, a) => (v + hi[a]) / 2);
+  const distance = Math.hypot(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]) / 2 / Math.sin((fov * Math.PI) / 360);
+  const e = (20 * Math.PI) / 180;
+  return { position: [centre[0], centre[1] + Math.sin(e) * distance, centre[2] - Math.cos(e) * distance],
+    target: centre };
+}
+
+async function main() {
+  const src = params.get('src');
+  const width = Number(params.get('width')) || innerWidth, height = Number(params.get('height')) || innerHeight;
+  const fov = Number(params.get('fov')) || 50;
+  const renderer = new THREE.WebGLRenderer({ canvas, antialias: false, preserveDrawingBuffer: true });
+  renderer.setPixelRatio(1);
+  renderer.setSize(width, height);
+  const scene = new THREE.Scene();
+  const camera = new THREE.PerspectiveCamera(fov, width / height, 0.01, 1000);
+  scene.add(new SparkRenderer({ renderer }));
+  configureDraco(browserDraco());
+  const start = performance.now();
+  let placed = false;
+  const place = (positions) => {
+    if (placed) return;
+    const view = frame(positions, fov);
+    camera.position.set(...view.position);
+    camera.up.set(0, 1, 0);
+    camera.lookAt(...view.target);
+    const d = Math.hypot(...view.position.map((p, i) => p - view.target[i]));
+    camera.near = d * 1e-3;
+    camera.far = d * 1e3;
+    camera.updateProjectionMatrix();
+    state.camera = { position: view.position, target: view.target, fov };
+    placed = true;
+  };
+  renderer.setAnimationLoop(() => renderer.render(scene, camera));
+  if (params.has('ply')) {  // Spark's own PLY loader, for comparison
+    const rotation = upRotation(params.get('up'));
+    const group = new THREE.Group();
+    group.quaternion.set(...rotation);
+    const mesh = new SplatMesh({ url: src });
+    group.add(mesh);
+    scene.add(group);
+    await mesh.initialized;
+    const centres = [];
+    mesh.packedSplats.forEachSplat((i, center) => centres.push(center.x, center.y, center.z));
+    place(rotatePositions(Float32Array.from(centres), rotation));
+    state.gaussians = mesh.packedSplats.numSplats;
+    state.layersShown = 1;
+  } else {
+    await loadSpc(src, {
+      THREE, SplatMesh, parent: scene, up: params.get('up'),
+      onLayer: (layer) => {
+        if (layer.cloud.count) place(rotatePositions(layer.cloud.positions, layer.rotation));
+        state.gaussians += layer.cloud.count;
+        state.layersShown = layer.index + 1;
+        state.tFirstPicture ??= performance.now() - start;
+        say(`layers: ${layer.index + 1}, Gaussians: ${state.gaussians}`);
+      },
+    });
+  }
+  // a few frames for Spark's sort of the final set of splats to come back and be drawn
+  for (let i = 0; i < 10; i++) await new Promise((resolve) => requestAnimationFrame(resolve));
+  await new Promise((resolve) => setTimeout(resolve, 500));
+  for (let i = 0; i < 5; i++) await new Promise((resolve) => requestAnimationFrame(resolve));
+  state.status = 'complete';
+  say(`${src}: ${state.gaussians} Gaussians`);
+}
+
+main().catch((error) => {
+  state.status = 'error';
+  state.error = { code: error.code ?? null, message: error.message, line: error.message };
+  say(`error: ${error.message}`);
+});

@@ -47,9 +47,13 @@ _RANGE = re.compile(r"^\s*(\d*)\s*-\s*(\d*)\s*$")
 
 
 def default_web_root() -> Path:
-    """The ``web/`` folder of the source tree this package runs from (the viewer is not a Python
-    package file: it lives beside the decoder's npm package)."""
-    return Path(__file__).resolve().parents[1] / "web"
+    """Where the viewer's files are: the ``web/`` folder of the source tree this package runs from
+    (the viewer lives beside the decoder's npm package), else the copy an installed wheel carries
+    in ``spcodec/web`` (setup.py puts it there)."""
+    source = Path(__file__).resolve().parents[1] / "web"
+    if (source / "viewer" / "index.html").is_file():
+        return source
+    return Path(__file__).resolve().parent / "web"
 
 
 class RangeNotSatisfiable(Exception):
@@ -284,9 +288,11 @@ def viewer_missing(web_root: Path | None = None) -> str | None:
     """Why the viewer page cannot run from ``web_root`` (None when it can)."""
     root = Path(web_root or default_web_root())
     if not (root / "viewer" / "index.html").is_file():
-        return f"the viewer page is not in {root / 'viewer'} (serve runs from a source checkout)"
+        return (f"the viewer page is not in {root / 'viewer'} (this spcodec was built without "
+                "its web folder: install it from a source checkout)")
     if not (root / "viewer" / "node_modules" / "playcanvas").is_dir():
         return f"the viewer's npm packages are not installed: run 'npm ci' in {root / 'viewer'}"
-    if not (root / "node_modules" / "fflate").is_dir():
+    if not (root / "node_modules" / "fzstd").is_dir() or \
+            not (root / "node_modules" / "draco3d").is_dir():
         return f"the decoder's npm packages are not installed: run 'npm ci' in {root}"
     return None

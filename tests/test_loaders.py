@@ -132,6 +132,7 @@ def test_spark_loader_draws_the_decoded_scene_upright_streamed_and_embedded(file
         upside = shoot(page_url(base, files["ply"], camera=camera), tmp_path / "pcd.png")
     count = len(spcodec.decode(files["spc"]))
     assert streamed["gaussians"] == embedded["gaussians"] == spark_ply["gaussians"] == count
+    assert playcanvas["sceneUp"] == "+z" and upside["sceneUp"] == "-y"
     assert lit(tmp_path / "s.png") > 0.02
     assert psnr(tmp_path / "p.png", tmp_path / "s.png") >= SAME_RENDERER_DB
     assert psnr(tmp_path / "p.png", tmp_path / "g.png") >= SAME_RENDERER_DB

@@ -355,6 +355,11 @@ class RetrainConfig:
     snap_start: float = 0.3
     #: Steps between moves of the snapped entries to their groups' weighted centroids.
     snap_refresh_every: int = 100
+    #: Snap only when quantizing at ``snap_start`` costs the training views at least this many
+    #: dB; below it, training goes on freely and the finish tunes the codebooks. Snapping gained
+    #: 0.3 dB in PlayCanvas on fourth_st (SH 3, 4.4 dB lost to codebooks) and lost 0.3 dB on
+    #: guitar (SH 0, 1.4 dB lost): docs/RESULTS.md section 13.
+    snap_min_loss: float = 2.5
 
     def __post_init__(self) -> None:
         if self.patch_downsample < 1:

@@ -255,10 +255,12 @@ class Snap:
                 self.entries[attr] = entries
 
 
-Quantizer = Callable[[GaussianCloud], "tuple[np.ndarray | None, list[Codebook], np.ndarray]"]
+Quantizer = Callable[[GaussianCloud],
+                     "tuple[np.ndarray | None, list[Codebook] | None, np.ndarray]"]
 """What :class:`SnappedGaussians` asks for when snapping starts: given the Gaussians as trained so
 far, the rows to keep (None: all; rate control drops some here, while steps remain to adapt),
-the codebooks of the kept rows and their k-means weights (n_kept,)."""
+the codebooks of the kept rows (None: do not snap, train on freely) and their k-means weights
+(n_kept,)."""
 
 
 class SnappedGaussians:
@@ -282,6 +284,8 @@ class SnappedGaussians:
         self.free = FreeGaussians(survivors, device, rates, extent)
         self.rows: np.ndarray | None = None
         """Rows of ``survivors`` still trained (None: all)."""
+        self.decided = False
+        """Whether step ``start`` has passed: rows kept and snapping chosen or declined."""
         self.snap: Snap | None = None
         self.weights: torch.Tensor | None = None
         self.grid: tuple[torch.Tensor, float] | None = None
@@ -308,7 +312,7 @@ class SnappedGaussians:
         return from_coded(values, means, self.attributes)
 
     def before_step(self, step: int, total: int) -> None:
-        if step == self.start and self.snap is None:
+        if step == self.start and not self.decided:
             self._begin_snapping()
         elif self.snap is not None and step > self.start and \
                 (step - self.start) % self.refresh_every == 0:
@@ -316,10 +320,10 @@ class SnappedGaussians:
         self.free.before_step(step, total)
 
     def state_dict(self) -> dict:
-        state = {"free": self.free.state_dict()}
+        state = {"free": self.free.state_dict(), "decided": torch.tensor(self.decided)}
+        if self.rows is not None:
+            state["rows"] = torch.as_tensor(self.rows)
         if self.snap is not None:
-            state["rows"] = torch.as_tensor(np.arange(len(self.survivors)) if self.rows is None
-                                            else self.rows)
             state["entries"] = {a.name: e.clone() for a, e in self.snap.entries.items()}
             state["weights"] = self.weights.clone()
             state["grid"] = torch.cat([self.grid[0], torch.tensor([self.grid[1]],
@@ -327,8 +331,10 @@ class SnappedGaussians:
         return state
 
     def load_state_dict(self, state: dict) -> None:
-        if "entries" in state:
+        self.decided = bool(state.get("decided", False))
+        if "rows" in state:
             self._keep(state["rows"].numpy())
+        if "entries" in state:
             self.snap = Snap({a: state["entries"][a.name].to(self.device)
                               for a in self.attributes})
             self.weights = state["weights"].to(self.device)
@@ -354,8 +360,11 @@ class SnappedGaussians:
     # ---------------------------------------------------------------------------- helpers
     def _begin_snapping(self) -> None:
         rows, codebooks, weights = self.quantize(self.free.to_cloud())
+        self.decided = True
         if rows is not None:
             self._keep(rows, carry=True)
+        if codebooks is None:
+            return
         self.snap = Snap.from_codebooks(codebooks, self.device)
         self.weights = torch.as_tensor(np.asarray(weights, np.float32), device=self.device)
         with torch.no_grad():

@@ -44,7 +44,7 @@ from spcodec.imaging.training.targets import Targets
 from spcodec.sections import Codebook
 
 from .config import RetrainConfig
-from .patch import PatchEncoder, Quantized
+from .patch import PatchEncoder, Quantized, quantized_cloud
 from .prune import select
 from .quantaware import CodebookGaussians, SnappedGaussians, with_positions
 
@@ -116,6 +116,8 @@ class RetrainStage:
         #: survivors still trained when retraining ended (None: all).
         self.snapped: list[Codebook] | None = None
         self.kept: np.ndarray | None = None
+        #: What the quantization cost when snapping was to start, and whether it did.
+        self.snap_decision: dict | None = None
 
     # ---------------------------------------------------------------------------- pruning
     def patch_weights(self, scene: GaussianCloud, patch_rows: np.ndarray) -> np.ndarray:
@@ -152,9 +154,13 @@ class RetrainStage:
                 loop.step = saved["step"]
             self._run_stage("retrain", loop, lambda: {"model": model.state_dict()}, on_step)
             trained = model.to_cloud()
-            if isinstance(model, SnappedGaussians) and model.snapping:
-                self.snapped, self.kept = model.snap.codebooks(), model.rows
-                stats["psnr_snapped"] = loop.mean_psnr()
+            if isinstance(model, SnappedGaussians):
+                self.kept = model.rows
+                if model.snapping:
+                    self.snapped = model.snap.codebooks()
+                    stats["psnr_snapped"] = loop.mean_psnr()
+            if self.snap_decision is not None:
+                stats["snap"] = self.snap_decision
         self.trained = trained
         stats["retrain_seconds"] = time.perf_counter() - start
         stats["psnr_retrained"] = loop.mean_psnr(GaussianParams.from_cloud(trained, self.device))
@@ -240,21 +246,37 @@ class RetrainStage:
         weights = encoder.kmeans_weights(importance)
         if weights is None:
             weights = np.ones(len(cloud))
-        return rows, encoder.quantize(cloud, weights).codebooks, weights
+        quantized = encoder.quantize(cloud, weights)
+        loss = self._quantization_loss(cloud, quantized)
+        self.snap_decision = {"loss_db": round(loss, 3),
+                              "snapped": loss >= self.config.snap_min_loss}
+        return rows, quantized.codebooks if loss >= self.config.snap_min_loss else None, weights
+
+    def _quantization_loss(self, cloud: GaussianCloud, quantized: Quantized) -> float:
+        """dB the training views lose when ``cloud`` is rendered through ``quantized``."""
+        loop = self._loop(None, 0)
+        snapped = quantized_cloud(quantized, cloud.means, cloud.sh_degree)
+        return loop.mean_psnr(GaussianParams.from_cloud(cloud, self.device)) - \
+            loop.mean_psnr(GaussianParams.from_cloud(snapped, self.device))
 
     def _snap_state(self) -> dict | None:
-        if self.snapped is None:
+        """What retraining decided that a later stage needs: the snapped codebooks (if it
+        snapped) and the rows rate control kept (if it dropped any)."""
+        if self.snapped is None and self.kept is None:
             return None
-        kept = torch.as_tensor(self.kept) if self.kept is not None else None
-        return {"entries": {cb.attribute.name: torch.from_numpy(cb.entries.astype(np.float32))
-                            for cb in self.snapped}, "kept": kept}
+        entries = None if self.snapped is None else {
+            cb.attribute.name: torch.from_numpy(cb.entries.astype(np.float32))
+            for cb in self.snapped}
+        return {"entries": entries,
+                "kept": None if self.kept is None else torch.as_tensor(self.kept)}
 
     def _restore_snap(self, state: dict | None) -> None:
         """The snapped codebooks and kept rows of a checkpoint written after retraining."""
         if not state:
             return
-        self.snapped = [Codebook(PatchAttribute[name], entries.numpy().astype(np.float16))
-                        for name, entries in state["entries"].items()]
+        if state["entries"] is not None:
+            self.snapped = [Codebook(PatchAttribute[name], entries.numpy().astype(np.float16))
+                            for name, entries in state["entries"].items()]
         self.kept = None if state["kept"] is None else state["kept"].numpy()
 
     def _loop(self, model, total: int) -> FitLoop:

@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
-from spcodec.imaging.render import RenderSettings
-from spcodec.imaging.training.optim import LearningRates
+from spcodec.imaging.training.rates import LearningRates
+
+if TYPE_CHECKING:  # the renderer loads torch; the configuration must not
+    from spcodec.imaging.render import RenderSettings
 
 DirectionMetric = Literal["axis", "signed"]
 """How categorization compares principal axes (see ``categorize.direction_distance``)."""
@@ -439,7 +441,10 @@ class EncoderConfig:
         )
 
     def render_settings(self, background: tuple[float, float, float]) -> RenderSettings:
-        """How training and judging render this scene."""
+        """How training and judging render this scene (imported here: the renderer needs torch,
+        and the configuration must not load it)."""
+        from spcodec.imaging.render import RenderSettings
+
         return RenderSettings(background=background, antialiased=self.antialiased,
                               blur_variance=self.blur_variance)
 

@@ -229,10 +229,12 @@ class Snap:
                                           entries).reshape(n, -1)
         return out
 
-    def apply(self, values: dict[PatchAttribute, torch.Tensor]
+    def apply(self, values: dict[PatchAttribute, torch.Tensor],
+              picked: dict[PatchAttribute, torch.Tensor] | None = None
               ) -> dict[PatchAttribute, torch.Tensor]:
-        """Every value replaced by its nearest entry, the gradient passed straight through."""
-        picked = self.indices(values)
+        """Every value replaced by its entry, the gradient passed straight through: the nearest
+        one, or the one ``picked`` says (indices from :meth:`indices` a few steps ago)."""
+        picked = self.indices(values) if picked is None else picked
         return {attr: straight_through(v, self.entries[attr][picked[attr]].reshape(v.shape))
                 for attr, v in values.items()}
 
@@ -276,9 +278,14 @@ class SnappedGaussians:
 
     def __init__(self, survivors: GaussianCloud, device: torch.device, rates: LearningRates,
                  extent: float, start: int, refresh_every: int, quantize: Quantizer,
-                 position_bits: int = 16) -> None:
+                 position_bits: int = 16, reassign_every: int = 10) -> None:
         self.survivors, self.device, self.rates, self.extent = survivors, device, rates, extent
         self.start, self.refresh_every, self.quantize = start, refresh_every, quantize
+        self.reassign_every = reassign_every
+        self.picked: dict[PatchAttribute, torch.Tensor] | None = None
+        """Each group's entry as last assigned: the nearest search (as costly as a render step on
+        a patch of 33k SH 3 Gaussians) runs every ``reassign_every`` steps, values move little in
+        between."""
         self.position_bits = position_bits
         self.attributes = PatchAttribute.for_sh_degree(survivors.sh_degree)
         self.free = FreeGaussians(survivors, device, rates, extent)
@@ -303,7 +310,10 @@ class SnappedGaussians:
         free = self.free.params()
         if self.snap is None:
             return free
-        values = self.snap.apply(coded_tensors(free, self.attributes))
+        coded = coded_tensors(free, self.attributes)
+        if self.picked is None:
+            self.picked = self.snap.indices(coded)
+        values = self.snap.apply(coded, self.picked)
         origin, step = self.grid
         means = free.means
         if step:
@@ -314,9 +324,13 @@ class SnappedGaussians:
     def before_step(self, step: int, total: int) -> None:
         if step == self.start and not self.decided:
             self._begin_snapping()
-        elif self.snap is not None and step > self.start and \
-                (step - self.start) % self.refresh_every == 0:
-            self.snap.refresh(coded_tensors(self.free.params(), self.attributes), self.weights)
+        elif self.snap is not None and step > self.start:
+            if (step - self.start) % self.refresh_every == 0:
+                self.snap.refresh(coded_tensors(self.free.params(), self.attributes),
+                                  self.weights)
+                self.picked = None
+            elif (step - self.start) % self.reassign_every == 0:
+                self.picked = None
         self.free.before_step(step, total)
 
     def state_dict(self) -> dict:
@@ -326,6 +340,8 @@ class SnappedGaussians:
         if self.snap is not None:
             state["entries"] = {a.name: e.clone() for a, e in self.snap.entries.items()}
             state["weights"] = self.weights.clone()
+            if self.picked is not None:  # a resumed run goes on with the same assignment
+                state["picked"] = {a.name: i.to(torch.int32) for a, i in self.picked.items()}
             state["grid"] = torch.cat([self.grid[0], torch.tensor([self.grid[1]],
                                                                   device=self.device)])
         return state
@@ -338,6 +354,8 @@ class SnappedGaussians:
             self.snap = Snap({a: state["entries"][a.name].to(self.device)
                               for a in self.attributes})
             self.weights = state["weights"].to(self.device)
+            self.picked = None if "picked" not in state else {
+                a: state["picked"][a.name].to(self.device, torch.int64) for a in self.attributes}
             grid = state["grid"].to(self.device)
             self.grid = (grid[:3], float(grid[3]))
         self.free.load_state_dict(state["free"])

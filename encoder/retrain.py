@@ -157,6 +157,7 @@ class RetrainStage:
             if isinstance(model, SnappedGaussians):
                 self.kept = model.rows
                 if model.snapping:
+                    model.picked = None  # the nearest entries, as the file will store them
                     self.snapped = model.snap.codebooks()
                     stats["psnr_snapped"] = loop.mean_psnr()
             if self.snap_decision is not None:

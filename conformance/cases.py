@@ -6,12 +6,18 @@ imports them, so declaring stays below collecting and nothing imports back.
 
 from __future__ import annotations
 
-from . import invalid_cases, valid_cases  # noqa: F401  (importing them declares their cases)
+from . import invalid_cases, stream_cases, valid_cases  # importing them declares their cases
 from .declare import CASES, Case
 
 __all__ = ["Case", "all_cases"]
 
 
+MODULES = (valid_cases, invalid_cases, stream_cases)
+"""The case modules in the suite's order: spec 1.0.1's cases after those of 1.0."""
+
+
 def all_cases() -> list[Case]:
-    """Every declared case, valid ones first, in declaration order."""
-    return [c for c in CASES if c.kind == "valid"] + [c for c in CASES if c.kind == "invalid"]
+    """Every declared case, valid ones first, each kind by module then declaration order."""
+    rank = {module.__name__: i for i, module in enumerate(MODULES)}
+    ordered = sorted(CASES, key=lambda c: rank[c.build.__module__])
+    return [c for c in ordered if c.kind == "valid"] + [c for c in ordered if c.kind == "invalid"]

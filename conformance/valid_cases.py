@@ -180,7 +180,7 @@ def empty_scene() -> bytes:
 
 @valid("empty-patch-layers",
        "SH 1, patch layers of zero Gaussians in QUANT16, Draco and float16, then one of five",
-       ["R-53", "R-55", "R-58", "R-52"])
+       ["R-53", "R-55", "R-58", "R-52", "R-99"])
 def empty_patch() -> bytes:
     rng = np.random.default_rng(12)
     clusters = scenes.sketch(rng, 1, [4], None)
@@ -191,7 +191,8 @@ def empty_patch() -> bytes:
     return _file(EncodedScene(1, clusters, books, layers))
 
 
-@valid("eight-layers", "SH 0, a sketch and seven patch layers", ["R-11", "R-12", "R-57", "R-10"],
+@valid("eight-layers", "SH 0, a sketch and seven patch layers",
+       ["R-11", "R-12", "R-57", "R-10", "R-100"],
        prefixes=True)
 def eight_layers() -> bytes:
     rng = np.random.default_rng(13)

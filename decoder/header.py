@@ -207,6 +207,9 @@ def _read_layers(rows: np.ndarray, sections: tuple[Section, ...], head) -> tuple
         if int(row["end_offset"]) != own[-1].end:
             raise FormatError(f"layer {i} end_offset {int(row['end_offset'])} is not the end of its "
                               f"last section ({own[-1].end})", "bad-layout")
+        if layers and own[-1].end <= layers[-1].end_offset:
+            raise FormatError(f"layer {i} ends where layer {i - 1} does ({own[-1].end}): a layer "
+                              "of zero bytes leaves a prefix's last layer ambiguous", "bad-layout")
         _check_layer_sections(i, own)
         total += int(row["gaussian_count"])
         layers.append(Layer(i, LayerKind(kind_id), int(row["gaussian_count"]),

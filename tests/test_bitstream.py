@@ -161,6 +161,29 @@ def test_truncated_gzip_wrapped_files(scene, data):
         [layer.cloud for layer in full.layers[:k]], full.header.sh_degree))
 
 
+@given(scenes, st.booleans())
+def test_layer_end_offsets_increase_strictly(scene, wrap):
+    """[R-9] (1.0.1): every layer ends after the one before, so a prefix names one last layer."""
+    layers = spcodec.inspect(build_bitstream(scene, WriteOptions(gzip=wrap))).to_json()["layers"]
+    ends = [layer.get("inner_end_offset", layer["end_offset"]) for layer in layers]
+    assert all(a < b for a, b in zip(ends, ends[1:]))
+
+
+@settings(max_examples=20)
+@given(scenes, st.integers(0, 7))
+def test_a_cut_gzip_trailer_checks_the_crc_once_its_four_bytes_are_there(scene, kept):
+    """[R-81] (1.0.1): a wrong CRC-32 is refused as soon as the input holds it, not before."""
+    blob = bytearray(build_bitstream(scene, WriteOptions(gzip=True)))
+    blob[-8] ^= 0x01
+    cut = bytes(blob[:len(blob) - 8 + kept])
+    if kept < 4:
+        assert spcodec.decode(cut).equals(spcodec.decode(build_bitstream(scene)))
+    else:
+        with pytest.raises(FormatError) as err:
+            spcodec.decode(cut)
+        assert err.value.code == "bad-gzip"
+
+
 def test_trailing_bytes_are_refused(small_file):
     with pytest.raises(FormatError) as err:
         spcodec.decode(small_file + b"\0")

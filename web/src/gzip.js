@@ -2,8 +2,9 @@
  * The optional gzip wrapper (spec section 8, [R-80]..[R-84]), inflated incrementally.
  *
  * A prefix of a wrapped file inflates to a prefix of the inner file ([R-81]), so the reader hands
- * out whatever inner bytes the input so far yields; the member's CRC-32 and ISIZE are verified
- * once its trailer is complete ([R-82]), and anything after the member is `trailing-data`.
+ * out whatever inner bytes the input so far yields; the member's CRC-32 is verified once its four
+ * bytes are here and ISIZE once the trailer is complete ([R-81], [R-82]), and anything after the
+ * member is `trailing-data`.
  * Output is inflated in pieces of at most {@link PIECE} bytes, and up to a watermark the caller
  * sets, with a callback after each, so the caller can read the inner header as soon as it is
  * whole and lower the cap to the inner `file_size` before a gzip bomb gets further ([R-84]).
@@ -200,11 +201,14 @@ export class GzipReader {
     const trailer = new Uint8Array(this.trailer.length + Math.min(need, bytes.length));
     trailer.set(this.trailer);
     trailer.set(bytes.subarray(0, need), this.trailer.length);
+    const hadCrc = this.trailer.length >= 4;
     this.trailer = trailer;
-    if (trailer.length < 8) return;
+    if (trailer.length < 4) return;
     const view = new DataView(trailer.buffer);
     const inner = this.inner;
-    if (view.getUint32(0, true) !== crc32(inner)) badGzip('gzip wrapper fails its CRC-32 check');
+    // the CRC-32 is checked as soon as its four bytes are here, ISIZE when it is ([R-81], [R-82])
+    if (!hadCrc && view.getUint32(0, true) !== crc32(inner)) badGzip('gzip wrapper fails its CRC-32 check');
+    if (trailer.length < 8) return;
     if (view.getUint32(4, true) !== inner.length % 2 ** 32) badGzip('gzip wrapper ISIZE mismatch');
     this.complete = true;
     if (bytes.length > need) throw new SpcError('trailing-data', 'bytes follow the gzip member');

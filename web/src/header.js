@@ -288,6 +288,10 @@ function readLayers(view, layerCount, sections, gaussianCount) {
     if (endOffset !== lastEnd) {
       fail('bad-layout', `layer ${i} end_offset ${endOffset} is not the end of its last section (${lastEnd})`);
     }
+    if (layers.length && endOffset <= layers[layers.length - 1].endOffset) {
+      // a layer of zero bytes would leave a prefix's last layer ambiguous ([R-9])
+      fail('bad-layout', `layer ${i} ends where layer ${i - 1} does (${endOffset})`);
+    }
     checkLayerSections(i, own);
     const count = view.getUint32(at + 4, true);
     total += count;

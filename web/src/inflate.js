@@ -279,8 +279,9 @@ export class RawInflater {
     const codes = buildTable(codeLengths, 'codes');
     const lengths = new Uint8Array(nlen + ndist);
     for (let i = 0; i < nlen + ndist;) {
-      if (this.pos + 14 > this.availableBits) this.starve(); // a 7-bit code and 7 extra bits
+      // each symbol is judged once its code and extra bits are all here, as zlib does ([R-81])
       const sym = this.symbol(codes);
+      if (this.pos > this.availableBits) this.starve();
       if (sym < 16) {
         lengths[i++] = sym;
         continue;
@@ -288,13 +289,16 @@ export class RawInflater {
       let value = 0;
       let repeat;
       if (sym === 16) {
-        if (i === 0) throw new DeflateError('invalid bit length repeat');
-        value = lengths[i - 1];
         repeat = 3 + this.bits(2);
       } else if (sym === 17) {
         repeat = 3 + this.bits(3);
       } else {
         repeat = 11 + this.bits(7);
+      }
+      if (this.pos > this.availableBits) this.starve();
+      if (sym === 16) {
+        if (i === 0) throw new DeflateError('invalid bit length repeat');
+        value = lengths[i - 1];
       }
       if (i + repeat > nlen + ndist) throw new DeflateError('invalid bit length repeat');
       lengths.fill(value, i, i + repeat);
@@ -357,14 +361,16 @@ export class RawInflater {
         let i = pos >>> 3;
         let v = (inp[i] | (inp[i + 1] << 8) | (inp[i + 2] << 16)) >>> (pos & 7);
         const e = lt[v & lmask];
+        pos += e === 0 ? 1 : e & 15; // an unused code of zlib's one-code exception: one bit
+        // a code is judged only once all its bits are here ([R-81]): zero padding past the input
+        // may complete a cut code into an invalid one that the real next bits would not make
+        if (pos > totalBits) {
+          pos = start;
+          this.starve();
+        }
         if (e === 0) throw new DeflateError('invalid literal/length code');
-        pos += e & 15;
         const sym = e >>> 4;
         if (sym < 256) {
-          if (pos > totalBits) {
-            pos = start;
-            this.starve();
-          }
           if (op >= outCap) {
             this.outLength = op;
             this.reserve(1);
@@ -375,10 +381,6 @@ export class RawInflater {
           continue;
         }
         if (sym === 256) {
-          if (pos > totalBits) {
-            pos = start;
-            this.starve();
-          }
           this.state = this.lastBlock ? STATE_DONE : STATE_HEADER;
           break;
         }
@@ -394,8 +396,12 @@ export class RawInflater {
         i = pos >>> 3;
         v = (inp[i] | (inp[i + 1] << 8) | (inp[i + 2] << 16)) >>> (pos & 7);
         const d = dt[v & dmask];
+        pos += d === 0 ? 1 : d & 15; // zlib's one incomplete distance code fails after one bit
+        if (pos > totalBits) {
+          pos = start;
+          this.starve();
+        }
         if (d === 0) throw new DeflateError('invalid distance code');
-        pos += d & 15;
         const ds = d >>> 4;
         if (ds >= 30) throw new DeflateError('invalid distance code');
         let dist = DIST_BASE[ds];

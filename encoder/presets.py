@@ -24,6 +24,7 @@ from .config import EncoderConfig, RetrainConfig
 
 _SH_BANDS = {"SH_BAND_1": 9, "SH_BAND_2": 15, "SH_BAND_3": 21}
 _SH_TRIPLETS = {"SH_BAND_1": 3, "SH_BAND_2": 3, "SH_BAND_3": 3}
+_SH_SCALARS = {"SH_BAND_1": 1, "SH_BAND_2": 1, "SH_BAND_3": 1}
 
 PRESETS: dict[str, dict] = {
     # Smallest files: whole-vector codebooks everywhere and more sketch. Quality depends on the
@@ -39,23 +40,40 @@ PRESETS: dict[str, dict] = {
     "highrate": dict(entry_dims={"SCALE": 1, "ROTATION": 2, "OPACITY": 1, "COLOR_DC": 1,
                                  **_SH_TRIPLETS}, tau_max=0.1,
                      retrain=dict(patch_downsample=2.0, iterations=3000)),
+    # Looks like the original in a viewer, smaller than SPZ: every Gaussian kept, as patch (the
+    # sketch's models cost more than they save here), one scalar codebook of 256 levels per
+    # attribute (the budget of docs/RESULTS.md 14.1: shared vector codebooks were most of
+    # highrate's loss). Never retrained: pruning would defeat the point.
+    "transparent": dict(entry_dims={"SCALE": 1, "ROTATION": 1, "OPACITY": 1, "COLOR_DC": 1,
+                                    **_SH_SCALARS}, tau_max=0.1, use_sketch=False,
+                        retrain=None),
 }
+
+
+def retrains(name: str) -> bool:
+    """Whether preset ``name`` can retrain (``transparent`` keeps every Gaussian, so it never
+    does)."""
+    return PRESETS[name]["retrain"] is not None
 
 
 def preset_config(name: str, base: EncoderConfig | None = None,
                   retrain: bool = False) -> EncoderConfig:
     """``base`` (default: a fresh EncoderConfig) with the preset's settings applied; with
-    ``retrain``, also its retraining settings (on ``base.retrain`` or a default RetrainConfig)."""
+    ``retrain``, also its retraining settings (on ``base.retrain`` or a default RetrainConfig).
+    A preset that never retrains refuses ``retrain`` with ValueError."""
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}: use one of {', '.join(PRESETS)}")
     base = base or EncoderConfig()
     values = PRESETS[name]
     retrain_config = base.retrain
     if retrain:
+        if not retrains(name):
+            raise ValueError(f"preset {name!r} keeps every Gaussian and never retrains")
         retrain_config = dataclasses.replace(base.retrain or RetrainConfig(), **values["retrain"])
     return dataclasses.replace(
         base,
         patch=dataclasses.replace(base.patch, entry_dims=dict(values["entry_dims"])),
         refine=dataclasses.replace(base.refine, tau_max=values["tau_max"]),
+        use_sketch=base.use_sketch and values.get("use_sketch", True),
         retrain=retrain_config,
     )

@@ -318,9 +318,11 @@ def cmd_conformance(args: argparse.Namespace) -> int:
 def _add_encode(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", help="a trained 3DGS scene (.ply, INRIA layout or compressed.ply)")
     p.add_argument("-o", "--output", required=True, help="the .spc file to write")
-    p.add_argument("--preset", choices=["lowrate", "balanced", "highrate"], default="balanced",
+    p.add_argument("--preset", choices=["lowrate", "balanced", "highrate", "transparent"],
+                   default="balanced",
                    help="rate/quality operating point: codebooks, sketch threshold and patch "
-                   "downsample (default: %(default)s)")
+                   "downsample; transparent keeps every Gaussian, never retrains, and aims to "
+                   "look like the input in a viewer (default: %(default)s)")
     p.add_argument("--codec", choices=["zlib", "zstd"], default="zlib",
                    help="section codec; zlib: every decoder reads it, zstd: faster to decode "
                    "(default: %(default)s)")
@@ -441,17 +443,18 @@ def encode_config(args: argparse.Namespace):
     import dataclasses
 
     from .encoder.config import EncoderConfig
-    from .encoder.presets import preset_config
+    from .encoder.presets import preset_config, retrains
     from .encoder.ratecontrol import parse_size
 
-    retrain = not args.no_retrain
+    retrain = not args.no_retrain and retrains(args.preset)
+    without = "--no-retrain" if args.no_retrain else f"--preset {args.preset} (it never retrains)"
     if not retrain:
         given = [f"--{n.replace('_', '-')}" for n in ("dataset", "iterations", "finish_iterations",
                                                       "views", "close_views", "resolution",
                                                       "resume", "checkpoint_every", "downscale")
                  if getattr(args, n) not in (None, False)]
         if given:
-            raise UsageError(f"{', '.join(given)} only apply to retraining: drop --no-retrain or "
+            raise UsageError(f"{', '.join(given)} only apply to retraining: drop {without} or "
                              "them")
     targets = [f"--{n.replace('_', '-')}" for n in ("target_size", "target_psnr",
                                                         "patch_downsample")
@@ -478,8 +481,8 @@ def encode_config(args: argparse.Namespace):
                 changes[name] = getattr(args, name)
         config.retrain = dataclasses.replace(config.retrain, **changes)
     elif args.patch_downsample is not None or args.prune is not None:
-        raise UsageError("--patch-downsample and --prune need retraining (without it, give "
-                         "--target-size to prune by importance)")
+        raise UsageError(f"--patch-downsample and --prune need retraining, which {without} "
+                         "leaves out (give --target-size to prune by importance without it)")
     return config
 
 

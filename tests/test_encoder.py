@@ -136,6 +136,9 @@ def test_cli_encode(tmp_path, capsys):
 @pytest.mark.parametrize("argv, message", [
     (["--no-retrain", "-o", "{tmp}/x.spc"], None),
     (["--no-retrain", "--iterations", "5"], "only apply to retraining"),
+    (["--preset", "transparent", "--iterations", "5"],
+     "drop --preset transparent (it never retrains) or them"),
+    (["--preset", "transparent", "--patch-downsample", "2"], "need retraining"),
     (["--no-retrain", "-o", "{tmp}/missing/x.spc"], "does not exist"),
 ])
 def test_cli_encode_errors(tmp_path, capsys, argv, message):
@@ -175,9 +178,29 @@ def test_defaults_are_the_balanced_preset_and_presets_order_by_size():
     assert default.refine.tau_max == balanced.refine.tau_max
     scene = make_scene(8, curves=4, per_curve=200, blobs=1500)
     sizes = {name: len(encode(scene.cloud, preset_config(name, FAST)).data) for name in PRESETS}
-    assert sizes["lowrate"] < sizes["balanced"] < sizes["highrate"]
+    assert sizes["lowrate"] < sizes["balanced"] < sizes["highrate"] < sizes["transparent"]
     with pytest.raises(ValueError, match="unknown preset"):
         preset_config("ultra")
+
+
+def test_transparent_keeps_every_gaussian_as_patch_with_scalar_codebooks(tmp_path, capsys):
+    """The near-lossless point: no sketch, no pruning, one 256-level codebook per component;
+    it never retrains, and the command line says so instead of training."""
+    from spcodec.encoder.presets import preset_config
+    scene = make_scene(9, curves=3, per_curve=150, blobs=800)
+    config = preset_config("transparent", FAST)
+    assert set(config.patch.entry_dims.values()) == {1} and not config.use_sketch
+    result = encode(scene.cloud, config)
+    decoded = spcodec.decode(result.data)
+    assert result.stats["sketch_gaussians"] == 0 and len(decoded) == len(scene.cloud)
+    order = result.source_index
+    assert np.abs(decoded.opacities - scene.cloud.opacities[order]).max() < 0.05
+    with pytest.raises(ValueError, match="never retrains"):
+        preset_config("transparent", retrain=True)
+    ply, out = tmp_path / "in.ply", tmp_path / "out.spc"
+    spcodec.write_ply(ply, scene.cloud)
+    assert main(["encode", str(ply), "-o", str(out), "--preset", "transparent", "--quiet"]) == 0
+    assert len(spcodec.decode(out)) == len(scene.cloud)
 
 
 def test_rate_control_without_retraining_renders_no_training_targets():

@@ -1,0 +1,153 @@
+"""Error budget: what each stored quantity costs on its own, as the viewer shows it.
+
+An encode without retraining keeps every input Gaussian (``EncodeResult.source_index`` says which
+decoded Gaussian is which input one). A *hybrid* is the original scene with one quantity replaced by
+what the file stores for it: the sketch's Draco positions, the sketch's polynomial attributes, the
+patch positions, one patch attribute's codebook values, and so on. Rendered by the PlayCanvas
+engine at the orbit framing and at half its distance against the original, each hybrid's PSNR is
+that quantity's cost; the whole decoded file is the last row. Position precision is also
+simulated directly (every position snapped to a uniform grid of 2^b steps over the scene's box, as
+QUANT16 and Draco store it over a layer's or cluster's box), and float16 rounding alone (what the
+codebooks' binary16 entries cost before any clustering).
+
+    python bench/bench_budget.py --scenes guitar donut fourth_st biker --preset highrate \\
+        --json budget.json
+
+Needs the viewer yardstick (``bench/viewer_yardstick.py``: node, Chromium and the shared tool).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import spcodec  # noqa: E402
+from spcodec.cloud import GaussianCloud  # noqa: E402
+
+import viewer_yardstick  # noqa: E402
+from bench_quality import SCENES  # noqa: E402
+
+ATTRIBUTES = ("scales", "quats", "opacities", "sh_dc", "sh_rest")
+"""The non-position arrays of a cloud, each one row of the budget."""
+
+
+def data_dir() -> Path:
+    import os
+
+    return Path(os.environ.get("SPCODEC_DATA", Path(__file__).resolve().parents[2] / "shared/data"))
+
+
+def encode(original: GaussianCloud, preset: str, up: str, antialiased: bool, seed: int):
+    """The no-retrain encode of ``preset`` (the operating point whose budget is wanted)."""
+    from spcodec.encoder.config import EncoderConfig
+    from spcodec.encoder.pipeline import encode as run
+    from spcodec.encoder.presets import preset_config
+    from spcodec.encoder.retrain import RunControl
+    from spcodec.encoder.stages import silent
+
+    config = dataclasses.replace(preset_config(preset, EncoderConfig(seed=seed)), up=up,
+                                 antialiased=antialiased)
+    return run(original, config, progress=silent, control=RunControl(device="cpu"))
+
+
+def hybrid(original: GaussianCloud, decoded: GaussianCloud, source: np.ndarray, rows: np.ndarray,
+           names: tuple[str, ...]) -> GaussianCloud:
+    """``original`` with arrays ``names`` of the Gaussians ``rows`` (decoded order) as decoded."""
+    out = original.subset(np.arange(len(original)))
+    for name in names:
+        target = getattr(out, name)
+        target[source[rows]] = getattr(decoded, name)[rows]
+    return out
+
+
+def grid_positions(original: GaussianCloud, bits: int) -> GaussianCloud:
+    """Every position on a uniform grid of ``2^bits - 1`` steps per axis over the scene's box."""
+    out = original.subset(np.arange(len(original)))
+    low, high = original.means.min(0), original.means.max(0)
+    step = np.where(high > low, (high - low) / (2 ** bits - 1), 1.0)
+    out.means = (np.round((original.means - low) / step) * step + low).astype(np.float32)
+    return out
+
+
+def float16_attributes(original: GaussianCloud) -> GaussianCloud:
+    """Every non-position value rounded to binary16 (opacity and rotation as coded: after the
+    sigmoid, and normalized), the floor of binary16 codebook entries."""
+    from spcodec.attributes import decode_opacity
+
+    out = original.subset(np.arange(len(original)))
+    for name in ("scales", "sh_dc", "sh_rest"):
+        setattr(out, name, getattr(original, name).astype(np.float16).astype(np.float32))
+    quats = original.quats / np.linalg.norm(original.quats, axis=1, keepdims=True)
+    out.quats = quats.astype(np.float16).astype(np.float32)
+    alpha = 1.0 / (1.0 + np.exp(-original.opacities.astype(np.float64)))
+    out.opacities = decode_opacity(alpha.astype(np.float16).astype(np.float32))
+    return out
+
+
+def variants(original: GaussianCloud, result, decoded: GaussianCloud):
+    """(row name, cloud) for every budget row of one encode."""
+    source = result.source_index
+    sketch = np.arange(result.stats["sketch_gaussians"])
+    patch = np.arange(result.stats["sketch_gaussians"], len(decoded))
+    yield "sketch positions (Draco)", hybrid(original, decoded, source, sketch, ("means",))
+    yield "sketch attributes (polynomial models)", hybrid(original, decoded, source, sketch,
+                                                          ATTRIBUTES)
+    yield "patch positions", hybrid(original, decoded, source, patch, ("means",))
+    for name in ATTRIBUTES:
+        yield f"patch {name} (codebooks)", hybrid(original, decoded, source, patch, (name,))
+    yield "float16 rounding of every attribute", float16_attributes(original)
+    for bits in (12, 14, 16, 18):
+        yield f"positions on a {bits}-bit grid", grid_positions(original, bits)
+    yield "the whole file", decoded
+
+
+def budget(name: str, preset: str, cache: Path, seed: int) -> list[dict]:
+    rel, up, antialiased = SCENES[name]
+    ply = data_dir() / rel
+    original = spcodec.read_ply(ply)
+    start = time.perf_counter()
+    result = encode(original, preset, up, antialiased, seed)
+    decoded = spcodec.decode(result.data)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "variant.ply"
+        for label, cloud in variants(original, result, decoded):
+            spcodec.write_ply(path, cloud)
+            seen = viewer_yardstick.two_framings(ply, path, cache, up, antialiased)
+            row = dict(scene=name, preset=preset, bytes=len(result.data), quantity=label, **seen)
+            print(f"{name:>10} {label:<42} orbit {seen['orbit']:6.2f}  close {seen['close']:6.2f}",
+                  flush=True)
+            rows.append(row)
+    rows[-1]["seconds"] = time.perf_counter() - start
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scenes", nargs="+", default=["guitar", "donut", "fourth_st", "biker"])
+    parser.add_argument("--preset", default="highrate")
+    parser.add_argument("--json", type=Path, required=True, help="rows, appended as scenes finish")
+    parser.add_argument("--viewer-cache", type=Path,
+                        default=Path(tempfile.gettempdir()) / "spcodec-yardstick")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    reason = viewer_yardstick.missing()
+    if reason:
+        raise SystemExit(f"bench_budget needs the viewer yardstick: {reason}")
+    rows = json.loads(args.json.read_text()) if args.json.exists() else []
+    for name in args.scenes:
+        rows += budget(name, args.preset, args.viewer_cache, args.seed)
+        args.json.write_text(json.dumps(rows, indent=2))
+
+
+if __name__ == "__main__":
+    main()

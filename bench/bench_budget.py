@@ -93,7 +93,8 @@ def float16_attributes(original: GaussianCloud) -> GaussianCloud:
     return out
 
 
-def variants(original: GaussianCloud, result, decoded: GaussianCloud):
+def variants(original: GaussianCloud, result, decoded: GaussianCloud,
+             grid_bits: tuple[int, ...] = ()):
     """(row name, cloud) for every budget row of one encode."""
     source = result.source_index
     sketch = np.arange(result.stats["sketch_gaussians"])
@@ -105,12 +106,13 @@ def variants(original: GaussianCloud, result, decoded: GaussianCloud):
     for name in ATTRIBUTES:
         yield f"patch {name} (codebooks)", hybrid(original, decoded, source, patch, (name,))
     yield "float16 rounding of every attribute", float16_attributes(original)
-    for bits in (12, 14, 16, 18):
+    for bits in grid_bits:
         yield f"positions on a {bits}-bit grid", grid_positions(original, bits)
     yield "the whole file", decoded
 
 
-def budget(name: str, preset: str, cache: Path, seed: int) -> list[dict]:
+def budget(name: str, preset: str, cache: Path, seed: int, grid_bits: tuple[int, ...]
+           ) -> list[dict]:
     rel, up, antialiased = SCENES[name]
     ply = data_dir() / rel
     original = spcodec.read_ply(ply)
@@ -120,7 +122,7 @@ def budget(name: str, preset: str, cache: Path, seed: int) -> list[dict]:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "variant.ply"
-        for label, cloud in variants(original, result, decoded):
+        for label, cloud in variants(original, result, decoded, grid_bits):
             spcodec.write_ply(path, cloud)
             seen = viewer_yardstick.two_framings(ply, path, cache, up, antialiased)
             row = dict(scene=name, preset=preset, bytes=len(result.data), quantity=label, **seen)
@@ -139,13 +141,15 @@ def main() -> None:
     parser.add_argument("--viewer-cache", type=Path,
                         default=Path(tempfile.gettempdir()) / "spcodec-yardstick")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--grid-bits", type=int, nargs="*", default=[],
+                        help="also judge every position on a uniform grid of these many bits")
     args = parser.parse_args()
     reason = viewer_yardstick.missing()
     if reason:
         raise SystemExit(f"bench_budget needs the viewer yardstick: {reason}")
     rows = json.loads(args.json.read_text()) if args.json.exists() else []
     for name in args.scenes:
-        rows += budget(name, args.preset, args.viewer_cache, args.seed)
+        rows += budget(name, args.preset, args.viewer_cache, args.seed, tuple(args.grid_bits))
         args.json.write_text(json.dumps(rows, indent=2))
 
 

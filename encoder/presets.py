@@ -42,11 +42,13 @@ PRESETS: dict[str, dict] = {
                      retrain=dict(patch_downsample=2.0, iterations=3000)),
     # Looks like the original in a viewer, smaller than SPZ: every Gaussian kept, as patch (the
     # sketch's models cost more than they save here), one scalar codebook of 256 levels per
-    # attribute (the budget of docs/RESULTS.md 14.1: shared vector codebooks were most of
-    # highrate's loss). Never retrained: pruning would defeat the point.
+    # attribute (the budget of docs/RESULTS.md 14.1: the rotation pairs' codebooks and the sketch
+    # were most of highrate's loss), 18-bit positions (inputs decoded from SPZ sit on a finer grid
+    # than 16 bits; 18 bits cost them nothing and other scenes about 5 %). Never retrained:
+    # pruning would defeat the point.
     "transparent": dict(entry_dims={"SCALE": 1, "ROTATION": 1, "OPACITY": 1, "COLOR_DC": 1,
                                     **_SH_SCALARS}, tau_max=0.1, use_sketch=False,
-                        retrain=None),
+                        position_bits=18, retrain=None),
 }
 
 
@@ -72,7 +74,9 @@ def preset_config(name: str, base: EncoderConfig | None = None,
         retrain_config = dataclasses.replace(base.retrain or RetrainConfig(), **values["retrain"])
     return dataclasses.replace(
         base,
-        patch=dataclasses.replace(base.patch, entry_dims=dict(values["entry_dims"])),
+        patch=dataclasses.replace(base.patch, entry_dims=dict(values["entry_dims"]),
+                                  position_bits=values.get("position_bits",
+                                                           base.patch.position_bits)),
         refine=dataclasses.replace(base.refine, tau_max=values["tau_max"]),
         use_sketch=base.use_sketch and values.get("use_sketch", True),
         retrain=retrain_config,

@@ -332,6 +332,9 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
     p.add_argument("--patch-layers", type=Bounded(int, 1, DEFAULT_LIMITS.max_layers - 1),
                    default=None, metavar="N",
                    help=f"number of patch layers: %(type)s (default: {PATCH_LAYERS_DEFAULT})")
+    p.add_argument("--position-bits", type=Bounded(int, 8, 30), default=None, metavar="B",
+                   help="bits of precision of the patch positions over each layer's box: "
+                   "%(type)s (default: set by --preset: 18 for transparent, 16 otherwise)")
     p.add_argument("--tau-max", type=Bounded(float, 0, exclusive=True), default=None,
                    metavar="TAU", help="polynomial-model error threshold of sketch clusters "
                    "(unitless): %(type)s (default: set by --preset)")
@@ -471,6 +474,8 @@ def encode_config(args: argparse.Namespace):
     config.up, config.antialiased = args.up, args.antialiased
     if args.patch_layers is not None:
         config.patch = dataclasses.replace(config.patch, layers=args.patch_layers)
+    if args.position_bits is not None:
+        config.patch = dataclasses.replace(config.patch, position_bits=args.position_bits)
     if args.tau_max is not None:
         config.refine = dataclasses.replace(config.refine, tau_max=args.tau_max)
     if retrain:

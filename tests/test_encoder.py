@@ -139,6 +139,7 @@ def test_cli_encode(tmp_path, capsys):
     (["--preset", "transparent", "--iterations", "5"],
      "drop --preset transparent (it never retrains) or them"),
     (["--preset", "transparent", "--patch-downsample", "2"], "need retraining"),
+    (["--no-retrain", "--position-bits", "40"], "an integer in 8..30"),
     (["--no-retrain", "-o", "{tmp}/missing/x.spc"], "does not exist"),
 ])
 def test_cli_encode_errors(tmp_path, capsys, argv, message):
@@ -190,6 +191,7 @@ def test_transparent_keeps_every_gaussian_as_patch_with_scalar_codebooks(tmp_pat
     scene = make_scene(9, curves=3, per_curve=150, blobs=800)
     config = preset_config("transparent", FAST)
     assert set(config.patch.entry_dims.values()) == {1} and not config.use_sketch
+    assert config.patch.position_bits == 18
     result = encode(scene.cloud, config)
     decoded = spcodec.decode(result.data)
     assert result.stats["sketch_gaussians"] == 0 and len(decoded) == len(scene.cloud)

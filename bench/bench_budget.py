@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import sys
 import tempfile
 import time
@@ -125,8 +126,11 @@ def budget(name: str, preset: str, cache: Path, seed: int, grid_bits: tuple[int,
         for label, cloud in variants(original, result, decoded, grid_bits):
             spcodec.write_ply(path, cloud)
             seen = viewer_yardstick.two_framings(ply, path, cache, up, antialiased)
+            # identical renders have no PSNR: null in the JSON, "=" in the printout
+            seen = {k: None if math.isinf(v) else v for k, v in seen.items()}
             row = dict(scene=name, preset=preset, bytes=len(result.data), quantity=label, **seen)
-            print(f"{name:>10} {label:<42} orbit {seen['orbit']:6.2f}  close {seen['close']:6.2f}",
+            shown = {k: "=" if v is None else f"{v:.2f}" for k, v in seen.items()}
+            print(f"{name:>10} {label:<42} orbit {shown['orbit']:>6}  close {shown['close']:>6}",
                   flush=True)
             rows.append(row)
     rows[-1]["seconds"] = time.perf_counter() - start

@@ -36,15 +36,10 @@ from spcodec.cloud import GaussianCloud  # noqa: E402
 
 import viewer_yardstick  # noqa: E402
 from bench_quality import SCENES  # noqa: E402
+from scenes import data_dir  # noqa: E402
 
 ATTRIBUTES = ("scales", "quats", "opacities", "sh_dc", "sh_rest")
 """The non-position arrays of a cloud, each one row of the budget."""
-
-
-def data_dir() -> Path:
-    import os
-
-    return Path(os.environ.get("SPCODEC_DATA", Path(__file__).resolve().parents[2] / "shared/data"))
 
 
 def encode(original: GaussianCloud, preset: str, up: str, antialiased: bool, seed: int):

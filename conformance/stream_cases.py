@@ -11,14 +11,25 @@ from __future__ import annotations
 import struct
 import zlib
 
-from spcodec.codecs import crc32, gzip_wrap, read_gzip_layer_ends
+from spcodec.codecs import crc32, read_gzip_layer_ends
 from spcodec.container import Codec
 from spcodec.writer import layer_end_offsets
 
 from .declare import invalid, valid
 from .deflate_bits import DYNAMIC, FIXED, RESERVED, STORED, BitWriter, dynamic_header, fixed_code
 from .forge import Draft
-from .invalid_cases import ATTR2, COEFFS, META, POS2, base, base_bytes
+from .invalid_cases import (  # the base file and its helpers, shared with the 1.0 vectors
+    ATTR2,
+    COEFFS,
+    META,
+    POS2,
+    _coefficients,
+    _stored,
+    _wrapped,
+    _zstd,
+    base,
+    base_bytes,
+)
 
 # ------------------------------------------------------------------------------------ zlib
 _FAR = bytes(range(256)) + bytes(range(255, -1, -1))
@@ -27,10 +38,7 @@ _FAR = bytes(range(256)) + bytes(range(255, -1, -1))
 
 def _with_metadata_stream(stored: bytes, raw_length: int) -> bytes:
     """The base file with its metadata section storing ``stored`` as zlib data."""
-    draft = base()
-    section = draft.sections[META]
-    section.codec, section.stored, section.raw_length = Codec.ZLIB, stored, raw_length
-    return draft.build()
+    return _stored(META, stored, raw_length=raw_length)
 
 
 def _zlib_header(stream: bytes, cinfo: int) -> bytes:
@@ -94,18 +102,9 @@ def zlib_incomplete_code() -> bytes:
 
 
 # ------------------------------------------------------------------------------------ zstd
-def _zstd_frame(raw: bytes) -> bytes:
-    import zstandard
-
-    return zstandard.ZstdCompressor(level=3, write_content_size=True).compress(raw)
-
-
 def _with_coefficients_frame(edit) -> bytes:
-    draft = base()
-    section = draft.sections[COEFFS]
-    frame = edit(_zstd_frame(section.raw))
-    section.codec, section.stored, section.raw_length = Codec.ZSTD, frame, len(section.raw)
-    return draft.build()
+    """The base file with its coefficients in a zstd frame changed by ``edit``."""
+    return _stored(COEFFS, edit(_zstd(_coefficients())), Codec.ZSTD)
 
 
 def _with_dictionary_id(frame: bytes) -> bytes:
@@ -130,15 +129,10 @@ def zstd_legacy() -> bytes:
 
 
 # ------------------------------------------------------------------------- cut gzip members
-def _wrapped() -> tuple[bytes, bytes]:
-    inner = base_bytes()
-    return inner, gzip_wrap(inner, layer_end_offsets(inner))
-
-
 def _after_layer_1(tail: bytes) -> bytes:
     """The wrapped base file cut at layer 1's recorded offset, then ``tail`` (the start of a
     deflate block of the writer's choosing: the flush left the stream at a byte boundary)."""
-    _, wrapped = _wrapped()
+    wrapped = _wrapped()
     return wrapped[:read_gzip_layer_ends(wrapped)[1]] + tail
 
 
@@ -146,14 +140,13 @@ def _after_layer_1(tail: bytes) -> bytes:
          "before ISIZE: a CRC present is checked; also with --max-layer 0", "bad-gzip",
          ["R-81", "R-82"], max_layers=(0,))
 def gzip_cut_wrong_crc() -> bytes:
-    inner, wrapped = _wrapped()
-    return wrapped[:-8] + struct.pack("<I", (crc32(inner) + 1) & 0xFFFFFFFF)
+    return _wrapped()[:-8] + struct.pack("<I", (crc32(base_bytes()) + 1) & 0xFFFFFFFF)
 
 
 @valid("gzip-cut-after-crc", "A gzip-wrapped file cut after its right CRC-32, before ISIZE: the "
        "whole inner file", ["R-81", "R-82"])
 def gzip_cut_right_crc() -> bytes:
-    return _wrapped()[1][:-4]
+    return _wrapped()[:-4]
 
 
 @invalid("gzip-cut-after-reserved-block-type", "A gzip-wrapped file cut after layer 1's flush and "

@@ -57,9 +57,46 @@ def split_layers(score: np.ndarray, fractions: tuple[float, ...], layers: int) -
     return [order[a:b] for a, b in zip(np.concatenate([[0], bounds[:-1]]), bounds)]
 
 
+MAX_GRID_EXPONENT = 24
+""":func:`input_grid` looks for grids of steps down to 2^-24 (SPZ stores positions on 2^-12)."""
+
+
+def input_grid(xyz: np.ndarray, bits: int) -> np.ndarray | None:
+    """The step per axis of a power-of-two grid that every position already lies on, when that
+    grid is no finer than ``bits`` over the layer's box and has at most 65,536 levels per axis
+    (QUANT16 then stores the positions exactly, in fewer levels than asked); None otherwise.
+
+    Inputs decoded from SPZ sit on a grid of 2^-12 (fourth_st: about 1,200 levels per axis):
+    coding them on a grid of their own box at 16 or 18 bits moves every one of them a little
+    (fourth_st at 18 bits: 69.7 dB in the viewer for positions alone, docs/RESULTS.md 14.4)."""
+    xyz = np.asarray(xyz, np.float64)
+    if len(xyz) == 0 or not np.isfinite(xyz).all():
+        return None
+    span = xyz.max(axis=0) - xyz.min(axis=0)
+    asked = max(float(span.max()), 1e-30) / ((1 << bits) - 1)
+    steps = np.zeros(3)
+    for axis in range(3):
+        for exponent in range(MAX_GRID_EXPONENT + 1):
+            scaled = xyz[:, axis] * 2.0 ** exponent
+            if np.array_equal(scaled, np.round(scaled)):
+                steps[axis] = 2.0 ** -exponent
+                break
+        else:
+            return None
+    if np.any(span / steps > 0xFFFF) or np.any(steps < asked):
+        return None
+    return steps
+
+
 def encode_positions(xyz: np.ndarray, mode: str, bits: int = 16) -> PatchPositions:
     """Positions of one layer in the configured mode (draco falls back to quant16 if Draco does not
-    keep the order, which the encoder checks by decoding)."""
+    keep the order, which the encoder checks by decoding). In draco and quant16 modes, positions
+    already on a coarser grid than ``bits`` asks for are stored exactly on it
+    (:func:`input_grid`)."""
+    if mode in ("draco", "quant16") and len(xyz):
+        grid = input_grid(xyz, bits)
+        if grid is not None:
+            return PatchPositions.quant16(xyz, grid, np.asarray(xyz, np.float64).min(axis=0))
     if mode == "draco":
         xyz = np.asarray(xyz, np.float64)
         if len(xyz) == 0:
@@ -111,6 +148,58 @@ def assign(values: np.ndarray, entries: np.ndarray) -> np.ndarray:
     n, width = values.shape
     dim = entries.shape[1]
     return nearest(values.reshape(n * (width // dim), dim), entries).reshape(n, width // dim)
+
+
+ROTATION_SCALES = np.geomspace(0.55, 1.0, 64)
+"""Multiples of a unit quaternion that scalar rotation codebooks try (:func:`assign_rotation`);
+1.0 is among them, so no Gaussian ends farther from its rotation than with plain nearest
+entries. 256 multiples over the same range cut the rms angle error by at most 5 % more (guitar;
+0.2 % on fourth_st) for four times the work."""
+
+
+def assign_rotation(values: np.ndarray, entries: np.ndarray) -> np.ndarray:
+    """Indices (n, 4) uint8 of unit quaternions ``values`` into a scalar (D = 1) codebook.
+
+    A decoder divides the coded quaternion by its norm ([R-31]), so every positive multiple of a
+    quaternion codes the same rotation; the four components are each rounded to the nearest
+    entry at every multiple in :data:`ROTATION_SCALES`, and each Gaussian keeps the multiple
+    whose rounded quaternion points closest to its own. The search is a finer grid of
+    directions for free: the rms angle error falls 1.7x on fourth_st and 2.6x on guitar against
+    rounding the unit quaternion itself (docs/RESULTS.md 14.4)."""
+    q = np.asarray(values, np.float64)
+    flat = entries.astype(np.float64)[:, 0]
+    order = np.argsort(flat, kind="stable")
+    sorted_entries = flat[order]
+    best = np.full(len(q), -1.0)
+    out = np.zeros(q.shape, np.uint8)
+    for scale in ROTATION_SCALES:
+        idx = _nearest_sorted(sorted_entries, q * scale)
+        coded = sorted_entries[idx]
+        norm = np.linalg.norm(coded, axis=1)
+        cosine = np.abs((coded * q).sum(axis=1)) / np.where(norm > 0, norm, np.inf)
+        better = cosine > best
+        best[better] = cosine[better]
+        out[better] = order[idx[better]]
+    return out
+
+
+def _nearest_sorted(sorted_entries: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Position in ``sorted_entries`` of the nearest entry to each value (ties: the lower)."""
+    hi = np.clip(np.searchsorted(sorted_entries, values), 1, max(len(sorted_entries) - 1, 1))
+    lo = hi - 1
+    if len(sorted_entries) == 1:
+        return np.zeros(values.shape, np.int64)
+    closer_lo = np.abs(values - sorted_entries[lo]) <= np.abs(sorted_entries[hi] - values)
+    return np.where(closer_lo, lo, hi)
+
+
+def assign_attribute(attribute: PatchAttribute, values: np.ndarray,
+                     entries: np.ndarray) -> np.ndarray:
+    """Indices of ``values`` (an attribute's coded values) into ``entries``: the nearest entry
+    per group, except for scalar rotation codebooks (:func:`assign_rotation`)."""
+    if attribute is PatchAttribute.ROTATION and entries.shape[1] == 1:
+        return assign_rotation(values, entries)
+    return assign(values, entries)
 
 
 @dataclass
@@ -213,7 +302,7 @@ class PatchEncoder:
             else:
                 entries = train_codebook(values[attr], dim, cfg.codebook_size, weights, cfg,
                                          seeds[attr])
-            return Codebook(attr, entries), assign(values[attr], entries)
+            return Codebook(attr, entries), assign_attribute(attr, values[attr], entries)
 
         done = dict(zip(values, self._map(train, list(values))))
         return Quantized([done[a][0] for a in values], {a: done[a][1] for a in values})
@@ -228,7 +317,8 @@ class PatchEncoder:
             raise ValueError(f"codebooks for {[cb.attribute.name for cb in codebooks]}, the cloud "
                              f"needs {[a.name for a in expected]}")
         values = coded_attributes(cloud)
-        indices = self._map(lambda cb: assign(values[cb.attribute], cb.entries), codebooks)
+        indices = self._map(lambda cb: assign_attribute(cb.attribute, values[cb.attribute],
+                                                        cb.entries), codebooks)
         return {cb.attribute: idx for cb, idx in zip(codebooks, indices)}
 
     def _map(self, fn, attributes: list) -> list:
@@ -265,8 +355,16 @@ class PatchEncoder:
         cfg = self.config
         if np.shape(importance) != (len(cloud),) or len(quantized) != len(cloud):
             raise ValueError("cloud, quantized and importance must describe the same Gaussians")
+        return self.layer_groups(cloud, quantized,
+                                 split_layers(importance, cfg.layer_fractions, cfg.layers))
+
+    def layer_groups(self, cloud: GaussianCloud, quantized: Quantized,
+                     groups: list[np.ndarray]) -> PatchEncoding:
+        """The encoding whose layers hold ``groups`` (indices into ``cloud``, first layer first);
+        Morton order within a layer, positions coded."""
+        cfg = self.config
         layers, orders = [], []
-        for members in split_layers(importance, cfg.layer_fractions, cfg.layers):
+        for members in groups:
             if len(members):
                 members = members[np.argsort(morton_codes(cloud.means[members].astype(np.float64)),
                                              kind="stable")]

@@ -43,12 +43,14 @@ PRESETS: dict[str, dict] = {
     # Looks like the original in a viewer, smaller than SPZ: every Gaussian kept, as patch (the
     # sketch's models cost more than they save here), one scalar codebook of 256 levels per
     # attribute (the budget of docs/RESULTS.md 14.1: the rotation pairs' codebooks and the sketch
-    # were most of highrate's loss), 18-bit positions (inputs decoded from SPZ sit on a finer grid
-    # than 16 bits; 18 bits cost them nothing and other scenes about 5 %). Never retrained:
-    # pruning would defeat the point.
+    # were most of highrate's loss; scalar rotations are assigned at the best of 64 multiples,
+    # encoder/patch.py), 14-bit positions over each layer's box (guitar loses 0.9 dB against 18
+    # bits and stays above SPZ; donut needs <= 14 to be smaller than SPZ), and inputs already on
+    # a coarser grid (decoded from SPZ) stored exactly on it. Never retrained: pruning would
+    # defeat the point. Measured against SPZ in docs/RESULTS.md 14.4.
     "transparent": dict(entry_dims={"SCALE": 1, "ROTATION": 1, "OPACITY": 1, "COLOR_DC": 1,
                                     **_SH_SCALARS}, tau_max=0.1, use_sketch=False,
-                        position_bits=18, retrain=None),
+                        position_bits=14, retrain=None),
 }
 
 

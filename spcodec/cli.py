@@ -334,7 +334,7 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
                    help=f"number of patch layers: %(type)s (default: {PATCH_LAYERS_DEFAULT})")
     p.add_argument("--position-bits", type=Bounded(int, 8, 30), default=None, metavar="B",
                    help="bits of precision of the patch positions over each layer's box: "
-                   "%(type)s (default: set by --preset: 18 for transparent, 16 otherwise)")
+                   "%(type)s (default: set by --preset: 14 for transparent, 16 otherwise)")
     p.add_argument("--tau-max", type=Bounded(float, 0, exclusive=True), default=None,
                    metavar="TAU", help="polynomial-model error threshold of sketch clusters "
                    "(unitless): %(type)s (default: set by --preset)")

@@ -191,7 +191,7 @@ def test_transparent_keeps_every_gaussian_as_patch_with_scalar_codebooks(tmp_pat
     scene = make_scene(9, curves=3, per_curve=150, blobs=800)
     config = preset_config("transparent", FAST)
     assert set(config.patch.entry_dims.values()) == {1} and not config.use_sketch
-    assert config.patch.position_bits == 18
+    assert config.patch.position_bits == 14
     result = encode(scene.cloud, config)
     decoded = spcodec.decode(result.data)
     assert result.stats["sketch_gaussians"] == 0 and len(decoded) == len(scene.cloud)

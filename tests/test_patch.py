@@ -6,6 +6,8 @@ import dataclasses
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import spcodec
 from spcodec.attributes import PatchAttribute
@@ -15,6 +17,8 @@ from spcodec.encoder.morton import morton_codes
 from spcodec.encoder.patch import PatchEncoder, coded_attributes, dequantize, quantized_cloud
 from spcodec.synthetic import make_scene
 from spcodec.writer import EncodedScene, build_bitstream
+
+from conftest import real_file
 
 CONFIG = PatchConfig(kmeans_iterations=10, kmeans_samples=20_000)
 
@@ -133,3 +137,71 @@ def test_blend_importance_sends_a_hidden_gaussian_last_where_footprint_sent_it_f
     footprint = PatchEncoder(dataclasses.replace(config, importance="footprint"))
     assert hidden in footprint.encode(cloud).order[0]
     assert hidden in PatchEncoder(config).encode(cloud).order[-1]
+
+
+# ------------------------------------------------------- scalar rotation codebooks, input grids
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(2, 256))
+def test_scaled_rotation_indices_are_never_farther_than_the_nearest_entries(seed, entries):
+    from spcodec.encoder.patch import assign, assign_rotation
+
+    rng = np.random.default_rng(seed)
+    q = rng.normal(size=(300, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q[q[:, 0] < 0] *= -1
+    book = np.sort(rng.uniform(-1, 1, (entries, 1))).astype(np.float16)
+
+    def angle(idx: np.ndarray) -> np.ndarray:
+        coded = book.astype(np.float64)[idx][..., 0]
+        norm = np.linalg.norm(coded, axis=1)
+        cosine = np.abs((coded * q).sum(axis=1)) / np.where(norm > 0, norm, np.inf)
+        return np.arccos(np.clip(cosine, 0, 1))
+
+    scaled, plain = assign_rotation(q, book), assign(q, book)
+    assert scaled.dtype == np.uint8 and scaled.shape == (300, 4) and scaled.max() < entries
+    assert np.all(angle(scaled) <= angle(plain) + 1e-12)
+
+
+def test_scaled_rotation_indices_halve_the_angle_error_on_a_real_scene():
+    from spcodec.attributes import canonical_rotation, decode_rotation
+    from spcodec.encoder.patch import assign, assign_rotation, train_codebook
+
+    q = canonical_rotation(spcodec.read_ply(real_file("playcanvas_biker_guitar/guitar_inria.ply")).quats)
+    book = train_codebook(q, 1, 256, None, PatchConfig(), 0)
+
+    def rms_degrees(idx: np.ndarray) -> float:
+        coded = decode_rotation(book.astype(np.float64)[idx][..., 0]).astype(np.float64)
+        cosine = np.clip(np.abs((coded * q).sum(axis=1)), 0, 1)
+        return float(np.sqrt(np.mean(np.degrees(2 * np.arccos(cosine)) ** 2)))
+
+    assert rms_degrees(assign_rotation(q, book)) < 0.5 * rms_degrees(assign(q, book))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(0, 14), st.integers(1, 4000))
+def test_positions_on_a_coarse_power_of_two_grid_are_stored_exactly(seed, exponent, levels):
+    from spcodec.encoder.patch import encode_positions
+    from spcodec.sections import PositionMode
+
+    rng = np.random.default_rng(seed)
+    offset = rng.integers(-2000, 2000, 3)
+    xyz = ((rng.integers(0, levels + 1, (200, 3)) + offset) * 2.0 ** -exponent).astype(np.float32)
+    for mode in ("draco", "quant16"):
+        stored = encode_positions(xyz, mode, 16)
+        assert stored.mode == PositionMode.QUANT16
+        assert np.array_equal(stored.decode(), xyz)
+
+
+def test_positions_off_any_grid_or_on_a_finer_one_keep_the_configured_coding():
+    from spcodec.encoder.patch import encode_positions, input_grid
+    from spcodec.sections import PositionMode
+
+    rng = np.random.default_rng(4)
+    trained = rng.normal(size=(500, 3)).astype(np.float32)
+    assert input_grid(trained, 16) is None
+    assert encode_positions(trained, "draco", 16).mode == PositionMode.DRACO
+    fine = (rng.integers(0, 60_000, (500, 3)) * 2.0 ** -12).astype(np.float32)
+    assert input_grid(fine, 12) is None  # 60,000 levels: finer than 12 bits asks for
+    assert input_grid(fine, 16) is not None
+    wide = (rng.integers(0, 70_000, (500, 3)) * 2.0 ** -12).astype(np.float32)
+    assert input_grid(wide, 18) is None  # more levels than QUANT16 holds

@@ -1,16 +1,24 @@
-"""Quality that rises early: PSNR of every layer prefix against the bytes it needs (issue 13.6).
+"""Quality that rises early: every layer prefix of a plain and a nested encode, as a viewer shows it.
 
-Each scene is encoded twice in one run, with the default encoder and with the previous default
-(opacity-footprint layers of 20/30/50 %, no cap on the sketch layer; ``bench_encode.py``'s
-:func:`previous_config`), and every prefix that ends at a non-empty layer is judged as
-``spcodec eval PREFIX --reference PLY --max-layer K`` judges it: 8 held-out sampled views of
-400x400, PSNR against the original's renders. It prints one table per scene and the two targets:
-the prefix at <= 30 % of the bytes within 6 dB of the full file, and the first non-empty layer
-complete after <= 10 % of the bytes. ``--plot`` draws PSNR against bytes for each scene, ours
-beside the previous ordering (matplotlib: a bench-only dependency, ``pip install matplotlib``).
+Each scene is encoded twice from the same input with the same retraining budget: plain
+retraining (all patch survivors trained for the full file, then split into layers by importance)
+and nested retraining (``--nested``: the layers are fixed first and trained one after the other,
+each with the layers before it frozen; encoder/nested.py). Every prefix that ends at a non-empty
+layer is decoded (``spcodec decode --max-layer K``) and rendered by the PlayCanvas engine at the
+orbit framing and at half its distance against the original (bench/viewer_yardstick.py). It
+prints one table per scene and the issue's targets: the longest prefix within 30 % of the bytes
+within 3 dB of the full file, the first non-empty layer complete within 10 % of the bytes and
+within 10 dB. ``--rd`` adds the RD points of ``bench/bench_rd.py`` (files encoded for their size)
+to the figure, so a prefix can be read against a file made for its size.
 
-    python bench/bench_layers.py [--scenes guitar fourth_st biker donut kacytran]
-                                 [--plot docs/results/prefix_psnr.png] [--json out.json]
+    python bench/bench_layers.py --json layers.json [--scenes guitar fourth_st biker donut kacytran]
+        [--iterations 3000] [--threads 1] [--patch-layers N]
+        [--file guitar:plain=/path/a.spc --file guitar:nested=/path/b.spc]   # judge, don't encode
+    python bench/bench_layers.py --json layers.json --plot docs/results/prefix_nested.png
+        [--rd docs/results/rd_viewer.json]
+
+An interrupted run keeps what it measured (rows are written as each file is judged) and
+continues where it stopped. matplotlib is needed for the figure only.
 """
 
 from __future__ import annotations
@@ -18,132 +26,180 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import tempfile
 import time
 from pathlib import Path
 
 import spcodec
 from spcodec.encoder.config import EncoderConfig
 from spcodec.encoder.pipeline import encode
-from spcodec.imaging.evaluate import EvalConfig, evaluate_against_reference
+from spcodec.encoder.presets import preset_config
 
-from bench_encode import previous_config  # bench/ is on sys.path
-from scenes import load_scene
+import viewer_yardstick  # bench/ is on sys.path
+from bench_quality import SCENES
+from scenes import data_dir
 
-SHARE_TARGET, DB_TARGET, FIRST_TARGET = 0.30, 6.0, 0.10
+SHARE_TARGET, DB_TARGET, FIRST_SHARE, FIRST_DB = 0.30, 3.0, 0.10, 10.0
+LABELS = ("plain", "nested")
 
 
-def prefixes(data: bytes, reference: spcodec.GaussianCloud, views: int) -> list[dict]:
-    """Bytes, share, Gaussians and PSNR of every prefix that ends at a non-empty layer."""
+def prefixes(data: bytes, original: Path, up: str, antialiased: bool, cache: Path) -> list[dict]:
+    """Bytes, share, Gaussians and viewer PSNR at both framings of every prefix that ends at a
+    non-empty layer."""
     info = spcodec.inspect(data).to_json()
     rows, gaussians = [], 0
     for layer in info["layers"]:
         gaussians += layer["gaussians"]
-        if not gaussians:
+        if not gaussians or layer["gaussians"] == 0:
             continue
-        model = spcodec.decode(data, max_layer=layer["index"])
-        psnr = evaluate_against_reference(model, reference, EvalConfig(views=views)).psnr
+        with tempfile.TemporaryDirectory() as tmp:
+            ply = Path(tmp) / "prefix.ply"
+            spcodec.write_ply(ply, spcodec.decode(data, max_layer=layer["index"]))
+            psnr = viewer_yardstick.two_framings(original, ply, cache, up, antialiased)
         rows.append({"layer": layer["index"], "bytes": layer["end_offset"],
                      "share": layer["end_offset"] / len(data), "gaussians": gaussians,
-                     "psnr": psnr})
+                     "orbit": round(psnr["orbit"], 3), "close": round(psnr["close"], 3)})
+        print(f"    L0-{layer['index']}: {layer['end_offset']:,} B "
+              f"({layer['end_offset'] / len(data):.1%}) orbit {psnr['orbit']:.2f} "
+              f"close {psnr['close']:.2f} dB", flush=True)
     return rows
 
 
-def verdict(rows: list[dict]) -> dict:
-    """The two targets for one file."""
-    full = rows[-1]["psnr"]
+def verdict(rows: list[dict], framing: str) -> dict:
+    """The issue's targets for one file at one framing."""
+    full = rows[-1][framing]
     early = [r for r in rows if r["share"] <= SHARE_TARGET]
-    best = max(early, key=lambda r: r["psnr"]) if early else None
-    return {"full_psnr": full, "first_share": rows[0]["share"],
-            "best_within_share": None if best is None else best["psnr"],
-            "gap_db": None if best is None else full - best["psnr"]}
+    best = max(early, key=lambda r: r[framing]) if early else None
+    first = rows[0]
+    return {"full": full, "best_within_share": None if best is None else best[framing],
+            "gap_db": None if best is None else round(full - best[framing], 3),
+            "first_share": first["share"], "first_gap_db": round(full - first[framing], 3),
+            "met": best is not None and full - best[framing] <= DB_TARGET
+            and first["share"] <= FIRST_SHARE and full - first[framing] <= FIRST_DB}
 
 
-def run(names: list[str], views: int, current: EncoderConfig) -> dict:
-    results = {}
-    for name in names:
-        cloud = load_scene(name)
-        results[name] = {}
-        for label, config in (("previous", previous_config()), ("current", current)):
+def config_for(label: str, iterations: int, layers: int | None, up: str,
+               antialiased: bool) -> EncoderConfig:
+    """The default retrained encode (``spcodec encode`` with --iterations), nested or not."""
+    config = preset_config("balanced", EncoderConfig(), retrain=True)
+    config.retrain = dataclasses.replace(config.retrain, iterations=iterations,
+                                         nested=label == "nested")
+    if layers is not None:
+        config.patch = dataclasses.replace(config.patch, layers=layers)
+    config.up, config.antialiased = up, antialiased
+    return config
+
+
+def run(args: argparse.Namespace) -> list[dict]:
+    rows = json.loads(args.json.read_text()) if args.json.exists() else []
+    done = {(r["scene"], r["label"]) for r in rows}
+    given = dict(item.split("=", 1) for item in args.file)
+    cache = args.viewer_cache
+    for scene in args.scenes:
+        rel, up, antialiased = SCENES[scene]
+        original = data_dir() / rel
+        for label in LABELS:
+            if (scene, label) in done:
+                continue
+            source = given.get(f"{scene}:{label}")
             start = time.perf_counter()
-            data = encode(cloud, config).data
+            if source is not None:
+                data, how = Path(source).read_bytes(), f"file {source}"
+            else:
+                config = config_for(label, args.iterations, args.patch_layers, up, antialiased)
+                data = encode(spcodec.read_ply(original), config).data
+                how = f"encoded, {args.iterations} steps"
             seconds = time.perf_counter() - start
-            rows = prefixes(data, cloud, views)
-            results[name][label] = {"bytes": len(data), "encode_seconds": seconds,
-                                    "prefixes": rows, **verdict(rows)}
-            print(f"{name} {label}: {len(data):,} bytes, encoded in {seconds:.1f} s", flush=True)
-    return results
+            print(f"{scene} {label}: {len(data):,} bytes ({how}, {seconds:.0f} s)", flush=True)
+            prefix_rows = prefixes(data, original, up, antialiased, cache)
+            rows.append({"scene": scene, "label": label, "bytes": len(data), "source": how,
+                         "encode_seconds": round(seconds, 1), "prefixes": prefix_rows,
+                         "orbit": verdict(prefix_rows, "orbit"),
+                         "close": verdict(prefix_rows, "close")})
+            args.json.write_text(json.dumps(rows, indent=1))
+    return rows
 
 
-def report(results: dict) -> None:
-    for name, runs in results.items():
-        print(f"\n{name}\n| encoder | layers | bytes | share | Gaussians | PSNR dB |")
-        print("|---|---|---:|---:|---:|---:|")
-        for label, res in runs.items():
-            for r in res["prefixes"]:
-                print(f"| {label} | L0-{r['layer']} | {r['bytes']:,} | {r['share']:.1%} | "
-                      f"{r['gaussians']:,} | {r['psnr']:.2f} |")
-    print("\n| scene | encoder | bytes | first picture at | best prefix <= 30 % | full | gap dB |")
-    print("|---|---|---:|---:|---:|---:|---:|")
-    for name, runs in results.items():
-        for label, res in runs.items():
-            best, gap = res["best_within_share"], res["gap_db"]
-            print(f"| {name} | {label} | {res['bytes']:,} | {res['first_share']:.1%} | "
-                  f"{'-' if best is None else f'{best:.2f}'} | {res['full_psnr']:.2f} | "
-                  f"{'-' if gap is None else f'{gap:.2f}'} |")
-        old, new = runs["previous"]["bytes"], runs["current"]["bytes"]
-        print(f"| {name} | size change | {100 * (new / old - 1):+.2f} % | | | | |")
+def report(rows: list[dict]) -> None:
+    for row in rows:
+        print(f"\n{row['scene']} {row['label']} ({row['bytes']:,} bytes)\n"
+              "| prefix | bytes | share | Gaussians | orbit dB | close dB |\n"
+              "|---|---:|---:|---:|---:|---:|")
+        for p in row["prefixes"]:
+            print(f"| L0-{p['layer']} | {p['bytes']:,} | {p['share']:.1%} | {p['gaussians']:,} | "
+                  f"{p['orbit']:.2f} | {p['close']:.2f} |")
+    print("\n| scene | encode | framing | full dB | best <= 30 % | gap dB | first layer at | "
+          "its gap dB | targets |\n|---|---|---|---:|---:|---:|---:|---:|---|")
+    for row in rows:
+        for framing in ("orbit", "close"):
+            v = row[framing]
+            best = "-" if v["best_within_share"] is None else f"{v['best_within_share']:.2f}"
+            gap = "-" if v["gap_db"] is None else f"{v['gap_db']:.2f}"
+            print(f"| {row['scene']} | {row['label']} | {framing} | {v['full']:.2f} | {best} | "
+                  f"{gap} | {v['first_share']:.1%} | {v['first_gap_db']:.2f} | "
+                  f"{'met' if v['met'] else 'missed'} |")
 
 
-def plot(results: dict, path: Path) -> None:
+def plot(rows: list[dict], path: Path, rd: Path | None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(results), figsize=(4.2 * len(results), 3.6), squeeze=False)
-    for ax, (name, runs) in zip(axes[0], results.items()):
-        for label, style in (("previous", "o--"), ("current", "s-")):
-            rows = runs[label]["prefixes"]
-            ax.plot([r["bytes"] / 1e3 for r in rows], [r["psnr"] for r in rows], style,
-                    label="footprint order (previous)" if label == "previous"
-                    else "blend-weight order (now)")
-        full = runs["current"]
-        ax.axvline(SHARE_TARGET * full["bytes"] / 1e3, color="grey", lw=0.8, ls=":")
-        ax.axhline(full["full_psnr"] - DB_TARGET, color="grey", lw=0.8, ls=":")
-        ax.set_title(name)
-        ax.set_xlabel("prefix bytes (kB)")
-        ax.grid(alpha=0.3)
-    axes[0][0].set_ylabel("PSNR vs original (dB)")
+    scenes = list(dict.fromkeys(r["scene"] for r in rows))
+    rd_rows = json.loads(rd.read_text()) if rd is not None and rd.exists() else []
+    fig, axes = plt.subplots(2, len(scenes), figsize=(4.4 * len(scenes), 7), squeeze=False)
+    for col, scene in enumerate(scenes):
+        for line, framing in enumerate(("orbit", "close")):
+            ax = axes[line][col]
+            for row in (r for r in rows if r["scene"] == scene):
+                ax.plot([p["bytes"] / 1e3 for p in row["prefixes"]],
+                        [p[framing] for p in row["prefixes"]],
+                        "s-" if row["label"] == "nested" else "o--",
+                        label=f"{row['label']} prefixes")
+            points = [r for r in rd_rows if r["scene"] == scene and r.get(framing) is not None
+                      and r["method"] in ("sp", "spz4", "sp-target")]
+            if points:
+                ax.plot([r["bytes"] / 1e3 for r in points], [r[framing] for r in points], "P",
+                        color="C4", markersize=9, label="retrained for its size")
+            ax.set_xscale("log")
+            ax.set_title(f"{scene}, {framing} (PlayCanvas)")
+            ax.set_xlabel("bytes received (kB)")
+            ax.grid(alpha=0.3, which="both")
+        axes[0][col].set_ylabel("PSNR vs original, orbit (dB)")
+        axes[1][col].set_ylabel("PSNR vs original, close-up (dB)")
     axes[0][0].legend(loc="lower right", fontsize=8)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=110)
     print(f"wrote {path}")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--json", type=Path, required=True, help="rows, written as files are judged")
     ap.add_argument("--scenes", nargs="+",
                     default=["guitar", "fourth_st", "biker", "donut", "kacytran"])
-    ap.add_argument("--views", type=int, default=8)
-    ap.add_argument("--plot", type=Path, help="write the PSNR-vs-bytes figure here (PNG)")
-    ap.add_argument("--json", type=Path, help="also write the measurements as JSON")
-    ap.add_argument("--layer-fractions", help="try another split of the patch, e.g. 0.1,0.2,0.7")
-    ap.add_argument("--importance-views", type=int, help="try another number of views")
+    ap.add_argument("--iterations", type=int, default=3000)
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--patch-layers", type=int, help="patch layers of both encodes")
+    ap.add_argument("--file", action="append", default=[], metavar="SCENE:LABEL=PATH",
+                    help="judge this .spc instead of encoding (LABEL: plain or nested)")
+    ap.add_argument("--viewer-cache", type=Path,
+                    default=Path(tempfile.gettempdir()) / "spcodec-yardstick")
+    ap.add_argument("--plot", type=Path, help="draw the figure from --json into this PNG and exit")
+    ap.add_argument("--rd", type=Path, help="bench_rd.py rows to draw beside the prefixes")
     args = ap.parse_args()
-    current = EncoderConfig()
-    if args.layer_fractions:
-        fractions = tuple(float(v) for v in args.layer_fractions.split(","))
-        current.patch = dataclasses.replace(current.patch, layers=len(fractions),
-                                            layer_fractions=fractions)
-    if args.importance_views:
-        current.patch = dataclasses.replace(current.patch, importance_views=args.importance_views)
-    results = run(args.scenes, args.views, current)
-    report(results)
-    if args.json:
-        args.json.write_text(json.dumps(results, indent=1))
     if args.plot:
-        plot(results, args.plot)
+        plot(json.loads(args.json.read_text()), args.plot, args.rd)
+        return
+    reason = viewer_yardstick.missing()
+    if reason:
+        raise SystemExit(f"the viewer yardstick cannot run: {reason}")
+    import torch
+
+    torch.set_num_threads(args.threads)
+    report(run(args))
 
 
 if __name__ == "__main__":

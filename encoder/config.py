@@ -262,6 +262,20 @@ class SketchConfig:
             raise ValueError("grouping must be 'run' or 'per_cluster'")
 
 
+LAYER_RATIO = 1.5
+"""Each patch layer of ``--patch-layers N`` (other than the default 3) holds this many times the
+Gaussians of the one before: a viewer refines in steps of equal relative size, and the first of
+6 layers holds 4.8 % of the patch, of 8 layers 2 %."""
+
+
+def geometric_fractions(layers: int, ratio: float = LAYER_RATIO) -> tuple[float, ...]:
+    """Shares of ``layers`` patch layers, each ``ratio`` times the one before, summing to 1."""
+    if layers < 1 or ratio <= 0:
+        raise ValueError("layers must be >= 1 and ratio > 0")
+    shares = [ratio ** k for k in range(layers)]
+    return tuple(share / sum(shares) for share in shares)
+
+
 @dataclass
 class PatchConfig:
     """Parameters of the patch encoder; defaults follow the paper unless a comment says why not."""
@@ -291,7 +305,8 @@ class PatchConfig:
     #: layer (7 %, with the codebooks) completes within 10 % of the file, a streaming viewer's
     #: first picture when there is no sketch; the first two (23.5 %) end before 30 % of the file
     #: with a sketch layer of 6 % (guitar). A fourth layer costs about 1 % in size (each layer
-    #: codes its positions on its own): docs/RESULTS.md, section 7.
+    #: codes its positions on its own): docs/RESULTS.md, section 7. Other layer counts on the
+    #: command line take :func:`geometric_fractions` (each layer 1.5 times the one before).
     layer_fractions: tuple[float, ...] = (0.07, 0.165, 0.765)
     #: Codebook trainer (encoder/kmeans.py): "sampled" (exact in one dimension, weight-proportional
     #: samples for vectors) or "exhaustive" (the previous scikit-learn k-means++ on uniform
@@ -362,6 +377,12 @@ class RetrainConfig:
     #: 0.3 dB in PlayCanvas on fourth_st (SH 3, 4.4 dB lost to codebooks) and lost 0.3 dB on
     #: guitar (SH 0, 1.4 dB lost): docs/RESULTS.md section 13.
     snap_min_loss: float = 2.5
+    #: Nested retraining (encoder/nested.py): the patch layers are fixed before training and
+    #: every step trains one layer prefix (sketch and layers 1..k), the whole file at
+    #: ``nested_full_share`` of the steps, so that every prefix is a trained scene for a
+    #: progressive viewer (plain retraining optimizes the full file only). Snapping is off.
+    nested: bool = False
+    nested_full_share: float = 0.5
 
     def __post_init__(self) -> None:
         if self.patch_downsample < 1:
@@ -378,6 +399,8 @@ class RetrainConfig:
             raise ValueError("downscale and max_views must be >= 1")
         if not 0 < self.reassign_at < 1:
             raise ValueError("reassign_at must lie in (0, 1)")
+        if not 0 <= self.nested_full_share <= 1:
+            raise ValueError("nested_full_share must lie in [0, 1]")
         if not 0 <= self.snap_start <= 1 or self.snap_refresh_every < 1:
             raise ValueError("snap_start must lie in [0, 1] and snap_refresh_every be >= 1")
 

@@ -9,6 +9,7 @@ retraining, which is why retraining is the default).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -25,7 +26,8 @@ from spcodec.imaging.training.checkpoint import Checkpointer, fingerprint
 from spcodec.imaging.training.targets import Targets, check_targets, dataset_targets, distillation_targets
 
 from .config import EncoderConfig, RetrainConfig
-from .patch import PatchEncoder, PatchEncoding, Quantized
+from .nested import NestedEncoder, layer_priority, layers_of, nested_groups, prefix_ends, prefix_schedule
+from .patch import PatchEncoder, PatchEncoding, Quantized, quantized_cloud
 from .prune import kept_count, prune_by_importance, select
 from .qualitycontrol import CloseupJudge, check_reachable, fewest_reaching
 from .ratecontrol import SNAP_MARGIN, TRAIN_MARGIN, RatePlan, fit_count, plan_count, within
@@ -163,21 +165,35 @@ def encode_pruned_patch(cloud: GaussianCloud, sketch: SketchOutcome, patch: Gaus
     if control.checkpoint is not None:
         checkpointer = Checkpointer(Path(control.checkpoint), fingerprint(
             cloud, config.to_json(), "" if dataset is None else str(Path(dataset).resolve())))
-    return _retrain(retrain, prepared.targets, writer, encoder, patch, kept, plan, judge, config,
-                    control, checkpointer, progress, times, stats)
+    return _retrain(retrain, prepared.targets, writer, encoder, patch, kept, weights[kept], plan,
+                    judge, config, control, checkpointer, progress, times, stats)
 
 
 def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
-             encoder: PatchEncoder, patch: GaussianCloud, kept: np.ndarray,
+             encoder: PatchEncoder, patch: GaussianCloud, kept: np.ndarray, weights: np.ndarray,
              plan: RatePlan | None, judge: CloseupJudge | None, config: EncoderConfig,
              control: RunControl,
              checkpointer: Checkpointer | None, progress: ProgressFactory,
              times: dict[str, float], stats: dict) -> PatchChoice:
+    layers = encoder.config.layers
+    priority = None
+    if retrain.nested:  # layers fixed now, every step trains one prefix (encoder/nested.py)
+        groups = nested_groups(weights, encoder)
+        kept = kept[np.concatenate(groups)]
+        layer_of = np.repeat(np.arange(len(groups)), [len(g) for g in groups])
+        priority = layer_priority(np.zeros(len(kept)), layer_of, layers)
+        encoder = NestedEncoder(encoder.config, seed=config.seed, jobs=encoder.jobs)
+        retrain = dataclasses.replace(retrain, snap_start=1.0)  # rows must stay put
     stage = RetrainStage(retrain, targets, writer.decoded_sketch(), encoder, config.seed,
                          control, checkpointer, settings=config.render_settings(targets.background))
+    if priority is not None:
+        stage.visible = prefix_schedule(prefix_ends(priority, layers), config.seed,
+                                        retrain.nested_full_share)
     if plan is not None:
         stage.fit_rows = _row_fit(config.target_size, writer, encoder)
     train_stats: dict = {"prune": retrain.prune}
+    if priority is not None:
+        train_stats["nested_layers"] = prefix_ends(priority, layers)
 
     t = time.perf_counter()
     clock = TrainingClock()
@@ -194,11 +210,14 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
     t = time.perf_counter()
     report = progress("quantize", None)
     quantized, importance = stage.quantize(trained)
+    if priority is not None:
+        importance = layer_priority(importance, layers_of(priority, layers), layers)
     if plan is not None:  # keep the most important that fit the target
         count, _ = fit_count(config.target_size, len(trained),
                              _sized(writer, encoder, trained, quantized, importance))
         top = prune_by_importance(importance, count)
         trained, quantized, kept = trained.subset(top), quantized.subset(top), kept[top]
+        importance = importance[top]
     if judge is not None:  # the fewest trained Gaussians that still reach the target
         fit = fewest_reaching(config.target_psnr, len(trained), _judged_quantized(
             writer, encoder, trained, quantized, importance, judge))
@@ -206,13 +225,19 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
                                 reached=fit.reached)
         top = prune_by_importance(importance, fit.count)
         trained, quantized, kept = trained.subset(top), quantized.subset(top), kept[top]
+        importance = importance[top]
     report.done(f"{len(kept)} Gaussians, codebooks of {encoder.config.codebook_size} entries")
     times["quantize"] = time.perf_counter() - t
 
     t = time.perf_counter()
     report = progress("finish", retrain.finish_iterations or None)
+    if priority is not None:  # the layers rate or quality control left
+        stage.visible = prefix_schedule(prefix_ends(importance, layers), config.seed + 1,
+                                        retrain.nested_full_share)
     quantized, trained = stage.finish(trained, quantized, train_stats, _meter(report, clock))
-    importance = stage.rank(trained)
+    ranked = stage.rank(trained)
+    importance = ranked if priority is None else \
+        layer_priority(ranked, layers_of(importance, layers), layers)
     encoding = encoder.layer(trained, quantized, importance)
     if plan is not None:
         size = len(writer.write(encoding))
@@ -221,8 +246,12 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
                                     _sized(writer, encoder, trained, quantized, importance))
             top = prune_by_importance(importance, count)
             trained, quantized, kept = trained.subset(top), quantized.subset(top), kept[top]
-            encoding = encoder.layer(trained, quantized, importance[top])
+            importance = importance[top]
+            encoding = encoder.layer(trained, quantized, importance)
             stats["rate"]["corrected"] = True
+    if priority is not None:  # what each prefix of the file shows on the training views
+        train_stats["prefix_psnr"] = _prefix_psnr(stage, trained, quantized,
+                                                  prefix_ends(importance, layers))
     gain = train_stats.get("psnr_finished", train_stats["psnr_quantized"]) \
         - train_stats["psnr_quantized"]
     report.done(f"quantized {train_stats['psnr_quantized']:.2f} dB, finish {gain:+.2f} dB on the "
@@ -232,6 +261,16 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
     if checkpointer is not None:
         checkpointer.remove()
     return PatchChoice(encoding, kept, stats)
+
+
+def _prefix_psnr(stage: RetrainStage, trained: GaussianCloud, quantized: Quantized,
+                 ends: list[int]) -> list[dict]:
+    """Mean PSNR on the training views of the sketch with each patch prefix that ends at a
+    non-empty layer, as the file codes it (positions before their grid): ``{"layer": K,
+    "psnr": dB}`` for the prefix of file layers 0..K."""
+    coded = quantized_cloud(quantized, trained.means, trained.sh_degree)
+    return [{"layer": k + 1, "psnr": round(stage.psnr(coded.subset(np.arange(end))), 3)}
+            for k, end in enumerate(ends) if end and (k == 0 or end > ends[k - 1])]
 
 
 def build_targets(cloud: GaussianCloud, config: EncoderConfig, dataset: str | Path | None,

@@ -118,6 +118,9 @@ class RetrainStage:
         self.kept: np.ndarray | None = None
         #: What the quantization cost when snapping was to start, and whether it did.
         self.snap_decision: dict | None = None
+        #: Nested retraining: which prefix each training step renders (step -> count of the
+        #: model's first Gaussians, None: all; encoder/nested.py). None: every step, all.
+        self.visible: Callable[[int], int | None] | None = None
 
     # ---------------------------------------------------------------------------- pruning
     def patch_weights(self, scene: GaussianCloud, patch_rows: np.ndarray) -> np.ndarray:
@@ -253,12 +256,14 @@ class RetrainStage:
                               "snapped": loss >= self.config.snap_min_loss}
         return rows, quantized.codebooks if loss >= self.config.snap_min_loss else None, weights
 
+    def psnr(self, patch: GaussianCloud) -> float:
+        """Mean PSNR on the training views of the frozen sketch with ``patch`` in front."""
+        return self._loop(None, 0).mean_psnr(GaussianParams.from_cloud(patch, self.device))
+
     def _quantization_loss(self, cloud: GaussianCloud, quantized: Quantized) -> float:
         """dB the training views lose when ``cloud`` is rendered through ``quantized``."""
-        loop = self._loop(None, 0)
         snapped = quantized_cloud(quantized, cloud.means, cloud.sh_degree)
-        return loop.mean_psnr(GaussianParams.from_cloud(cloud, self.device)) - \
-            loop.mean_psnr(GaussianParams.from_cloud(snapped, self.device))
+        return self.psnr(cloud) - self.psnr(snapped)
 
     def _snap_state(self) -> dict | None:
         """What retraining decided that a later stage needs: the snapped codebooks (if it
@@ -282,7 +287,7 @@ class RetrainStage:
 
     def _loop(self, model, total: int) -> FitLoop:
         return FitLoop(model, self.targets, self.settings, total, seed=self.seed,
-                       frozen=self.frozen, stop=self.control.stop)
+                       frozen=self.frozen, stop=self.control.stop, visible=self.visible)
 
     def _run_stage(self, name: str, loop: FitLoop, state: Callable[[], dict],
                    after_step: Callable[[StepReport], None] | None = None) -> None:

@@ -331,7 +331,9 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
                    help="encode every Gaussian as patch (default: off)")
     p.add_argument("--patch-layers", type=Bounded(int, 1, DEFAULT_LIMITS.max_layers - 1),
                    default=None, metavar="N",
-                   help=f"number of patch layers: %(type)s (default: {PATCH_LAYERS_DEFAULT})")
+                   help="number of patch layers: %(type)s; other than the default, each holds "
+                   "1.5 times the Gaussians of the one before (default: "
+                   f"{PATCH_LAYERS_DEFAULT}: 7, 16.5 and 76.5 %% of the patch)")
     p.add_argument("--position-bits", type=Bounded(int, 8, 30), default=None, metavar="B",
                    help="bits of precision of the patch positions over each layer's box: "
                    "%(type)s (default: set by --preset: 14 for transparent, 16 otherwise)")
@@ -378,6 +380,11 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
     train.add_argument("--finish-iterations", type=Bounded(int, 0), default=None, metavar="N",
                        help="steps of the quantization-aware finish, 0 = off: %(type)s (default: "
                        f"{RETRAIN_DEFAULTS['finish_iterations']})")
+    train.add_argument("--nested", action="store_true", default=None,
+                       help="progressive by construction: fix the patch layers before training "
+                       "and train every layer prefix (half the steps the whole file, the rest "
+                       "shorter prefixes), so each prefix a streaming viewer shows is a trained "
+                       "scene; same steps (default: off)")
     train.add_argument("--views", type=Bounded(int, 1, 10000), default=None, metavar="N",
                        help="distillation: training views sampled around the input: %(type)s "
                        f"(default: {RETRAIN_DEFAULTS['views']})")
@@ -445,7 +452,7 @@ def encode_config(args: argparse.Namespace):
     """The EncoderConfig the encode options describe (checked, with one-line errors)."""
     import dataclasses
 
-    from .encoder.config import EncoderConfig
+    from .encoder.config import EncoderConfig, geometric_fractions
     from .encoder.presets import preset_config, retrains
     from .encoder.ratecontrol import parse_size
 
@@ -454,7 +461,8 @@ def encode_config(args: argparse.Namespace):
     if not retrain:
         given = [f"--{n.replace('_', '-')}" for n in ("dataset", "iterations", "finish_iterations",
                                                       "views", "close_views", "resolution",
-                                                      "resume", "checkpoint_every", "downscale")
+                                                      "resume", "checkpoint_every", "downscale",
+                                                      "nested")
                  if getattr(args, n) not in (None, False)]
         if given:
             raise UsageError(f"{', '.join(given)} only apply to retraining: drop {without} or "
@@ -472,8 +480,9 @@ def encode_config(args: argparse.Namespace):
         config.target_size = parse_size(args.target_size)
     config.target_psnr = args.target_psnr
     config.up, config.antialiased = args.up, args.antialiased
-    if args.patch_layers is not None:
-        config.patch = dataclasses.replace(config.patch, layers=args.patch_layers)
+    if args.patch_layers is not None and args.patch_layers != config.patch.layers:
+        config.patch = dataclasses.replace(config.patch, layers=args.patch_layers,
+                                           layer_fractions=geometric_fractions(args.patch_layers))
     if args.position_bits is not None:
         config.patch = dataclasses.replace(config.patch, position_bits=args.position_bits)
     if args.tau_max is not None:
@@ -481,7 +490,7 @@ def encode_config(args: argparse.Namespace):
     if retrain:
         changes = {}
         for name in ("patch_downsample", "prune", "iterations", "finish_iterations", "views",
-                     "close_views", "resolution", "downscale"):
+                     "close_views", "resolution", "downscale", "nested"):
             if getattr(args, name) is not None:
                 changes[name] = getattr(args, name)
         config.retrain = dataclasses.replace(config.retrain, **changes)

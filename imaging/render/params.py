@@ -61,6 +61,10 @@ class GaussianParams:
         """The five tensors, in field order (e.g. to hand to an optimizer)."""
         return [getattr(self, f.name) for f in fields(self)]
 
+    def head(self, count: int) -> "GaussianParams":
+        """The first ``count`` Gaussians (views of the same tensors, gradients flow through)."""
+        return GaussianParams(*(t[:count] for t in self.tensors()))
+
     def detach(self) -> "GaussianParams":
         """The same values cut from the autograd graph."""
         return GaussianParams(*(t.detach() for t in self.tensors()))

@@ -84,6 +84,9 @@ class FitLoop:
     after_step: Callable[[int, RenderResult], None] | None = None
     """Called after each optimizer step with the count of completed steps and that step's render
     (its screen-position gradient still attached): adaptive density control hooks in here."""
+    visible: Callable[[int], int | None] | None = None
+    """How many of the model's Gaussians (its first ones) step ``step`` renders and trains (None:
+    all): nested retraining trains every layer prefix of the file this way."""
 
     def view(self, step: int) -> TargetView:
         return self.targets.views[view_order(len(self.targets.views), step, self.seed)]
@@ -92,7 +95,11 @@ class FitLoop:
         """Render the next view, backpropagate the loss, step the optimizer."""
         target = self.view(self.step)
         self.model.before_step(self.step, self.total)
-        result = render(join(self.frozen, self.model.params()), target.camera, self.settings)
+        params = self.model.params()
+        count = None if self.visible is None else self.visible(self.step)
+        if count is not None:
+            params = params.head(count)
+        result = render(join(self.frozen, params), target.camera, self.settings)
         loss = photometric_loss(result.image, target.image, target.mask, self.dssim_weight)
         self.model.optimizer.zero_grad(set_to_none=True)
         loss.backward()

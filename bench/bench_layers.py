@@ -145,6 +145,7 @@ def plot(rows: list[dict], path: Path, rd: Path | None) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter, ScalarFormatter
 
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
     rd_rows = json.loads(rd.read_text()) if rd is not None and rd.exists() else []
@@ -163,6 +164,8 @@ def plot(rows: list[dict], path: Path, rd: Path | None) -> None:
                 ax.plot([r["bytes"] / 1e3 for r in points], [r[framing] for r in points], "P",
                         color="C4", markersize=9, label="retrained for its size")
             ax.set_xscale("log")
+            ax.xaxis.set_major_formatter(ScalarFormatter())
+            ax.xaxis.set_minor_formatter(NullFormatter())
             ax.set_title(f"{scene}, {framing} (PlayCanvas)")
             ax.set_xlabel("bytes received (kB)")
             ax.grid(alpha=0.3, which="both")

@@ -11,6 +11,7 @@ are missing (``.ci/run`` installs them when it can).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 import subprocess
@@ -249,3 +250,32 @@ def test_a_z_up_scene_stands_upright_from_the_axis_its_file_stores(tmp_path):
     assert lit_share(spc_image) > 0.02
     assert psnr(spc_image, image(tmp_path / "told.png")) >= PSNR_FLOOR_DB
     assert psnr(spc_image, image(tmp_path / "dflt.png")) < 25
+
+
+def test_the_hud_says_what_the_encoder_measured_for_the_prefix_on_screen(scene, tmp_path):
+    """A nested encode stores each prefix's PSNR in the metadata (``stats.prefix_psnr``); the page
+    shows the one for the layers on screen, and ignores a malformed table."""
+    from spcodec.writer import WriteOptions, build_bitstream
+
+    _, info = scene
+    table = [{"layer": 1, "psnr": 24.5}, {"layer": 2, "psnr": 30.25},
+             {"layer": len(info["layers"]) - 1, "psnr": 36.0}]
+    from spcodec.encoder.config import EncoderConfig
+    from spcodec.encoder.pipeline import encode
+    from spcodec.synthetic import make_scene
+
+    result = encode(make_scene(seed=1, curves=8, per_curve=300, blobs=4000).cloud,
+                    EncoderConfig(n_jobs=1, seed=0))
+    files = {}
+    for name, stats in (("good", {"prefix_psnr": table}), ("bad", {"prefix_psnr": "36 dB"})):
+        files[name] = tmp_path / f"{name}.spc"
+        files[name].write_bytes(build_bitstream(dataclasses.replace(
+            result.scene, metadata={**result.scene.metadata, "stats": stats}), WriteOptions()))
+    with serving(list(files.values())) as base:
+        whole = visit(page_url(base, files["good"]), ("complete", None))["state"]
+        first = visit(page_url(base, files["good"], maxLayer=1), ("complete", None))["state"]
+        bad = visit(page_url(base, files["bad"]), ("complete", None))["state"]
+    assert whole["prefixPsnr"] == table
+    assert whole["prefixLine"] == "this prefix: 36.0 dB of the file's 36.0 dB (encoder, training views)"
+    assert first["prefixLine"] == "this prefix: 24.5 dB of the file's 36.0 dB (encoder, training views)"
+    assert bad["status"] == "complete" and bad["prefixLine"] is None

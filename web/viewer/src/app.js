@@ -51,6 +51,8 @@ const state = {
   renderer: null,
   camera: null,  // {position, target, fov} once placed: pass it back in the URL to reproduce a view
   sceneUp: null,  // the scene's up axis as used (stored in the file, from the URL, or the default)
+  prefixPsnr: null,  // what the encoder measured per layer prefix (metadata stats.prefix_psnr)
+  prefixLine: null,  // the on-screen line made from it for the prefix shown, or null
 };
 window.spcViewer = state;
 
@@ -75,6 +77,21 @@ function formatBytes(n) {
   return `${(n / 1e6).toFixed(2)} MB`;
 }
 
+/**
+ * One line on what the prefix on screen scored when it was encoded, from the metadata's
+ * `stats.prefix_psnr` (`[{layer, psnr}]`, written by nested encodes; untrusted like the rest of
+ * the file, so anything malformed gives no line), or null.
+ */
+function prefixLine(table, layersShown) {
+  if (!Array.isArray(table) || layersShown < 1) return null;
+  const valid = table.filter((e) => Number.isInteger(e?.layer) && Number.isFinite(e?.psnr));
+  const reached = valid.filter((e) => e.layer <= layersShown - 1).pop();
+  const full = valid[valid.length - 1];
+  if (!reached || !full) return null;
+  return `this prefix: ${reached.psnr.toFixed(1)} dB of the file's ${full.psnr.toFixed(1)} dB ` +
+    '(encoder, training views)';
+}
+
 function showProgress() {
   const share = state.totalBytes ? ` (${(100 * state.bytesLoaded / state.totalBytes).toFixed(0)}%)` : '';
   const lines = [
@@ -83,6 +100,8 @@ function showProgress() {
   ];
   if (state.kind === 'spc') {
     lines.push(`layers shown: ${state.layersShown} of ${state.layerCount ?? '?'}`);
+    state.prefixLine = prefixLine(state.prefixPsnr, state.layersShown);
+    if (state.prefixLine) lines.push(state.prefixLine);
   }
   lines.push(`Gaussians: ${state.gaussians.toLocaleString('en')}`);
   if (state.tFirstPicture != null) lines.push(`first picture: ${(state.tFirstPicture / 1000).toFixed(2)} s`);
@@ -230,6 +249,7 @@ async function streamLayersInto(loadSpc, app, maxLayer, addLayer) {
     onInfo: (info) => {
       state.layerCount = info.layers.length;
       state.sceneUp = info.metadata?.up ?? params.get('up') ?? '-y';
+      state.prefixPsnr = info.metadata?.stats?.prefix_psnr ?? null;
     },
     onProgress: (bytes) => {
       state.bytesLoaded = bytes;

@@ -74,15 +74,17 @@ def input_grid(xyz: np.ndarray, bits: int) -> np.ndarray | None:
         return None
     span = xyz.max(axis=0) - xyz.min(axis=0)
     asked = max(float(span.max()), 1e-30) / ((1 << bits) - 1)
+    def on_grid(values: np.ndarray, exponent: int) -> bool:
+        scaled = values * 2.0 ** exponent
+        return bool(np.array_equal(scaled, np.round(scaled)))
+
     steps = np.zeros(3)
     for axis in range(3):
-        for exponent in range(MAX_GRID_EXPONENT + 1):
-            scaled = xyz[:, axis] * 2.0 ** exponent
-            if np.array_equal(scaled, np.round(scaled)):
-                steps[axis] = 2.0 ** -exponent
-                break
-        else:
+        values = xyz[:, axis]
+        if not on_grid(values, MAX_GRID_EXPONENT):  # trained positions: one pass, then out
             return None
+        exponent = next(e for e in range(MAX_GRID_EXPONENT + 1) if on_grid(values, e))
+        steps[axis] = 2.0 ** -exponent
     if np.any(span / steps > 0xFFFF) or np.any(steps < asked):
         return None
     return steps

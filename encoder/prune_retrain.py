@@ -176,24 +176,22 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
              checkpointer: Checkpointer | None, progress: ProgressFactory,
              times: dict[str, float], stats: dict) -> PatchChoice:
     layers = encoder.config.layers
-    priority = None
-    if retrain.nested:  # layers fixed now, every step trains one prefix (encoder/nested.py)
+    layer_of = None  # nested: the layer of each survivor, fixed before training
+    train_stats: dict = {"prune": retrain.prune}
+    if retrain.nested:  # every step trains one layer prefix (encoder/nested.py)
         groups = nested_groups(weights, encoder)
         kept = kept[np.concatenate(groups)]
         layer_of = np.repeat(np.arange(len(groups)), [len(g) for g in groups])
-        priority = layer_priority(np.zeros(len(kept)), layer_of, layers)
         encoder = NestedEncoder(encoder.config, seed=config.seed, jobs=encoder.jobs)
         retrain = dataclasses.replace(retrain, snap_start=1.0)  # rows must stay put
+        train_stats["nested_layers"] = np.cumsum([len(g) for g in groups]).tolist()
     stage = RetrainStage(retrain, targets, writer.decoded_sketch(), encoder, config.seed,
                          control, checkpointer, settings=config.render_settings(targets.background))
-    if priority is not None:
-        stage.visible = prefix_schedule(prefix_ends(priority, layers), config.seed,
+    if layer_of is not None:
+        stage.visible = prefix_schedule(train_stats["nested_layers"], config.seed,
                                         retrain.nested_full_share)
     if plan is not None:
         stage.fit_rows = _row_fit(config.target_size, writer, encoder)
-    train_stats: dict = {"prune": retrain.prune}
-    if priority is not None:
-        train_stats["nested_layers"] = prefix_ends(priority, layers)
 
     t = time.perf_counter()
     clock = TrainingClock()
@@ -210,8 +208,8 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
     t = time.perf_counter()
     report = progress("quantize", None)
     quantized, importance = stage.quantize(trained)
-    if priority is not None:
-        importance = layer_priority(importance, layers_of(priority, layers), layers)
+    if layer_of is not None:
+        importance = layer_priority(importance, layer_of, layers)
     if plan is not None:  # keep the most important that fit the target
         count, _ = fit_count(config.target_size, len(trained),
                              _sized(writer, encoder, trained, quantized, importance))
@@ -231,12 +229,12 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
 
     t = time.perf_counter()
     report = progress("finish", retrain.finish_iterations or None)
-    if priority is not None:  # the layers rate or quality control left
+    if layer_of is not None:  # the layers rate or quality control left
         stage.visible = prefix_schedule(prefix_ends(importance, layers), config.seed + 1,
                                         retrain.nested_full_share)
     quantized, trained = stage.finish(trained, quantized, train_stats, _meter(report, clock))
     ranked = stage.rank(trained)
-    importance = ranked if priority is None else \
+    importance = ranked if layer_of is None else \
         layer_priority(ranked, layers_of(importance, layers), layers)
     encoding = encoder.layer(trained, quantized, importance)
     if plan is not None:
@@ -249,7 +247,7 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
             importance = importance[top]
             encoding = encoder.layer(trained, quantized, importance)
             stats["rate"]["corrected"] = True
-    if priority is not None:  # what each prefix of the file shows on the training views
+    if layer_of is not None:  # what each prefix of the file shows on the training views
         train_stats["prefix_psnr"] = _prefix_psnr(stage, trained, quantized,
                                                   prefix_ends(importance, layers))
     gain = train_stats.get("psnr_finished", train_stats["psnr_quantized"]) \

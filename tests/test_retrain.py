@@ -149,14 +149,18 @@ def test_training_never_changes_the_frozen_tensors(scene):
 
 
 # --------------------------------------------------------------------- checkpoint, resume
-@pytest.mark.parametrize("stop_stage, stop_at, target, snap", [
-    ("retrain", 5, None, 0.0), ("retrain", 23, None, 0.0), ("finish", 5, None, 0.0),
-    ("retrain", 23, 15_000, 0.0), ("finish", 5, 15_000, 0.0),  # rows dropped at step 12, snapped
-    ("retrain", 23, 15_000, 100.0), ("finish", 5, 15_000, 100.0),  # dropped, not snapped
+@pytest.mark.parametrize("stop_stage, stop_at, target, snap, nested", [
+    ("retrain", 5, None, 0.0, False), ("retrain", 23, None, 0.0, False),
+    ("finish", 5, None, 0.0, False),
+    ("retrain", 23, 15_000, 0.0, False),  # rows dropped at step 12, snapped
+    ("finish", 5, 15_000, 0.0, False),
+    ("retrain", 23, 15_000, 100.0, False), ("finish", 5, 15_000, 100.0, False),  # not snapped
+    # nested: each step's prefix is drawn from the step's seed, so a resume draws the same
+    ("retrain", 23, None, 0.0, True), ("finish", 5, None, 0.0, True),
 ])
 def test_interrupt_and_resume_give_the_same_bytes(tmp_path, scene, stop_stage, stop_at, target,
-                                                  snap):
-    config = dataclasses.replace(retrain_config(iterations=40, snap_min_loss=snap),
+                                                  snap, nested):
+    config = dataclasses.replace(retrain_config(iterations=40, snap_min_loss=snap, nested=nested),
                                  target_size=target)
     whole = encode(scene, config).data
 

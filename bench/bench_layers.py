@@ -2,8 +2,8 @@
 
 Each scene is encoded twice from the same input with the same retraining budget: plain
 retraining (all patch survivors trained for the full file, then split into layers by importance)
-and nested retraining (``--nested``: the layers are fixed first and trained one after the other,
-each with the layers before it frozen; encoder/nested.py). Every prefix that ends at a non-empty
+and nested retraining (``--nested``: the layers are fixed first and every training step renders a
+prefix of them, so each prefix is a trained scene; encoder/nested.py). Every prefix that ends at a non-empty
 layer is decoded (``spcodec decode --max-layer K``) and rendered by the PlayCanvas engine at the
 orbit framing and at half its distance against the original (bench/viewer_yardstick.py). It
 prints one table per scene and the issue's targets: the longest prefix within 30 % of the bytes

@@ -185,6 +185,23 @@ def test_throttled_stream_shows_layer_0_before_the_file_arrives(scene, tmp_path)
     assert final["layersShown"] == len(info["layers"])
 
 
+def test_the_benchmark_page_decodes_and_builds_a_resource(scene):
+    """bench/bench_viewer.py's in-page measurements (web/viewer/bench.html) load and run."""
+    spc, info = scene
+    script = f"""(async () => {{
+      const b = window.spcBench;
+      return {{ decode: await b.decodeTimes('/scenes/{spc.name}', 1),
+                resource: await b.spcToResource('/scenes/{spc.name}') }};
+    }})()"""
+    with serving([spc]) as base:
+        report = drive([{"url": f"{base}/viewer/bench.html", "captures": [], "evaluate": script,
+                         "waitFor": "window.spcBenchReady === true", "timeoutMs": 60_000}])[0]
+    assert report["error"] is None, (report["error"], report["console"][-5:])
+    value = report["value"]
+    assert value["decode"]["gaussians"] == value["resource"]["gaussians"] == info["gaussians"]
+    assert len(value["decode"]["times"]) == 1 and value["resource"]["ms"] > 0
+
+
 def test_gzip_wrapped_files_stream_too(scene, tmp_path):
     """With the wrapper's layer offsets ([R-83]) the page still fetches layer by layer; without
     them it reads one stream; either way every layer is shown."""

@@ -5,7 +5,7 @@ import * as pc from 'playcanvas';
 import { configureDraco, decode } from '../../src/index.js';
 import { browserDraco } from '../../src/draco-browser.js';
 import { createApp } from './engine.js';
-import { toGSplatData } from './splats.js';
+import { toGSplatData } from '../../loaders/playcanvas.js';
 
 configureDraco(browserDraco());
 const app = await createApp(document.getElementById('scene'), 64, 64);

@@ -17,14 +17,22 @@ PLY):
    layers: the report says how many, and how many bytes had arrived by then.
 2. **Decode throughput** in the page: ``decode(bytes)`` of the whole file, after one warm-up,
    ``--decode-repeat`` times; Gaussians per second from the median.
-3. **.spc vs PLY** (no throttle, loopback): request + decode + PlayCanvas resource for the .spc,
+3. **Quality at every layer** at each of ``--layer-kbps`` (default 2, 20 and 100 Mbit/s): the
+   page keeps the frame that showed each non-empty layer (``layerPictures=1``); each frame's PSNR
+   against the finished picture of the same visit, with when it was shown, the bytes in by then
+   and the layers it holds (at a fast link one frame can hold several).
+4. **.spc vs PLY** (no throttle, loopback): request + decode + PlayCanvas resource for the .spc,
    against PlayCanvas's PLY loader for the decoded PLY (request + parse + the same resource),
    alternating ``--repeat`` times; medians and their ratio.
 
 Rendering is WebGL 2 on SwiftShader (no GPU here), so "on screen" includes a software rasterizer's
 sort and draw; the share of bytes at the first picture does not depend on it.
 
+``--file SCENE=PATH`` judges a given .spc instead (a nested encode, say: ``spcodec encode X.ply
+-o X.spc --nested --patch-layers 6``).
+
     python bench/bench_viewer.py [--scenes fourth_st guitar] [--kbps 20000] [--repeat 3]
+                                 [--layer-kbps 2000 20000 100000] [--file guitar=/path/g.spc]
                                  [--work /tmp/spcodec-bench-viewer] [--json out.json]
 """
 
@@ -45,7 +53,7 @@ from spcodec.imaging.images import read_image  # noqa: E402
 from spcodec.imaging.metrics import psnr  # noqa: E402
 
 from scenes import data_dir  # noqa: E402  bench/ is on sys.path
-from viewer_harness import drive, missing_tools, page_url, serving  # noqa: E402
+from viewer_harness import LAYER_PICTURES, drive, layer_pictures, missing_tools, page_url, serving  # noqa: E402
 
 SCENES = {
     "fourth_st": "pdal_fourth_st_spz/fourth_st_inria.ply",
@@ -53,11 +61,13 @@ SCENES = {
 }
 
 
-def prepare(name: str, work: Path) -> tuple[Path, Path]:
-    """The scene's .spc (default encode, no retraining) and its decoded PLY, made once."""
+def prepare(name: str, work: Path, given: Path | None = None) -> tuple[Path, Path]:
+    """The scene's .spc (``given``, else the default encode without retraining, made once) and
+    its decoded PLY."""
     source = data_dir() / SCENES[name]
-    spc, ply = work / f"{name}.spc", work / f"{name}.decoded.ply"
-    if not spc.exists():
+    spc = given or work / f"{name}.spc"
+    ply = work / f"{spc.stem}.decoded.ply"
+    if given is None and not spc.exists():
         subprocess.run([sys.executable, "-m", "spcodec.cli", "encode", str(source), "-o", str(spc),
                         "--no-retrain", "--quiet"], check=True)
     if not ply.exists():
@@ -104,11 +114,44 @@ def streaming(spc: Path, ply: Path, kbps: float, repeat: int, shots: Path) -> di
         "bytes_when_first_picture_shown": [s["bytesWhenFirstPictureShown"] for s in states],
         "bytes_total": states[0]["totalBytes"],
         "runs": [(s["tFirstPicture"] / 1000, s["tComplete"] / 1000) for s in states],
+        "camera": camera,
         "ply_picture_s": reference["state"]["tComplete"] / 1000,
         "ply_bytes": reference["state"]["bytesLoaded"],
         "full_vs_ply_psnr_db": psnr(read_image(reference_png), read_image(full)),
         "first_frame_vs_ply_psnr_db": psnr(read_image(reference_png), read_image(first)),
     }
+
+
+def distinct(pictures: list[dict]) -> list[dict]:
+    """The first frame for each set of layers: when bytes come faster than frames, the frame
+    that showed layer k may already hold k+1, and the one for k+1 then shows nothing new."""
+    kept = []
+    for picture in pictures:
+        if not kept or picture["layersInPicture"] > kept[-1]["layersInPicture"]:
+            kept.append(picture)
+    return kept
+
+
+def layer_by_layer(spc: Path, rates_kbps: list[float], camera: dict) -> list[dict]:
+    """At each link speed, every frame that showed a new layer, judged against the visit's
+    finished picture (same camera, so the difference is the layers still to come)."""
+    runs = []
+    for kbps in rates_kbps:
+        with serving([spc], throttle_kbps=kbps) as base:
+            report = drive([{"url": page_url(base, spc, 480, 360, camera=camera, layerPictures=1),
+                             "timeoutMs": 600_000, "captures": [{"when": "complete"}],
+                             "evaluate": LAYER_PICTURES}], timeout=3600)[0]
+        if report["error"]:
+            raise RuntimeError(report["error"])
+        pictures = distinct(layer_pictures(report))
+        final, total = pictures[-1], report["state"]["totalBytes"]
+        rows = [{"layer": p["layer"], "layers_in_picture": p["layersInPicture"],
+                 "bytes": p["bytesLoaded"], "share": p["bytesLoaded"] / total,
+                 "shown_s": p["tShown"] / 1000,
+                 "psnr_vs_full_db": None if p is final else psnr(final["image"], p["image"])}
+                for p in pictures]
+        runs.append({"kbps": kbps, "frames": rows})
+    return runs
 
 
 def in_page(spc: Path, ply: Path, repeat: int, decode_repeat: int) -> dict:
@@ -148,6 +191,10 @@ def main() -> int:
     parser.add_argument("--kbps", type=float, default=20_000, help="link speed in kbit/s")
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--decode-repeat", type=int, default=5)
+    parser.add_argument("--layer-kbps", type=float, nargs="+", default=[2_000, 20_000, 100_000],
+                        help="link speeds for the picture at every layer, kbit/s")
+    parser.add_argument("--file", action="append", default=[], metavar="SCENE=PATH",
+                        help="judge this .spc for SCENE instead of the default encode")
     parser.add_argument("--work", type=Path, default=Path("/tmp/spcodec-bench-viewer"))
     parser.add_argument("--json", type=Path, help="also write the results here")
     args = parser.parse_args()
@@ -155,11 +202,16 @@ def main() -> int:
     if problem:
         print(f"cannot run: {problem}", file=sys.stderr)
         return 1
+    given = dict(entry.split("=", 1) for entry in args.file)
+    if not set(given) <= set(SCENES):
+        parser.error(f"--file names a scene that is not one of {', '.join(SCENES)}")
     args.work.mkdir(parents=True, exist_ok=True)
     results = {"kbps": args.kbps, "date": time.strftime("%Y-%m-%d"), "scenes": {}}
     for name in args.scenes:
-        spc, ply = prepare(name, args.work)
-        row = {**layer_facts(spc), **streaming(spc, ply, args.kbps, args.repeat, args.work),
+        spc, ply = prepare(name, args.work, Path(given[name]) if name in given else None)
+        stream = streaming(spc, ply, args.kbps, args.repeat, args.work)
+        row = {"file": str(spc), **layer_facts(spc), **stream,
+               "layer_by_layer": layer_by_layer(spc, args.layer_kbps, stream["camera"]),
                **in_page(spc, ply, args.repeat, args.decode_repeat)}
         results["scenes"][name] = row
         print(f"{name}: {row['gaussians']:,} Gaussians, {row['file_bytes']:,} bytes; first picture "
@@ -171,6 +223,12 @@ def main() -> int:
               f"{row['full_vs_ply_psnr_db']:.1f} dB, first frame {row['first_frame_vs_ply_psnr_db']:.1f} dB "
               f"(layers in it: {row['layers_in_first_picture']}, bytes in by then: "
               f"{row['bytes_when_first_picture_shown']})", flush=True)
+        for run in row["layer_by_layer"]:
+            print(f"  at {run['kbps'] / 1000:g} Mbit/s: " + "; ".join(
+                f"L0-{f['layers_in_picture'] - 1} {f['shown_s']:.2f} s "
+                f"{f['share']:.0%} " + ("full" if f["psnr_vs_full_db"] is None
+                                         else f"{f['psnr_vs_full_db']:.1f} dB")
+                for f in run["frames"]), flush=True)
         print(f"  decode {row['decode_ms']:.0f} ms = {row['gaussians_per_s'] / 1e6:.2f} M Gaussians/s; "
               f"to a PlayCanvas resource: .spc {row['spc_to_resource_ms']:.0f} ms, PLY "
               f"{row['ply_to_resource_ms']:.0f} ms (PLY / spc {row['ply_over_spc']:.2f}x); .spc phases "

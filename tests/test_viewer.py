@@ -22,7 +22,7 @@ import pytest
 import spcodec
 from spcodec.cli import main
 
-from viewer_harness import VIEWER, drive, missing_tools, page_url, serving
+from viewer_harness import LAYER_PICTURES, VIEWER, drive, layer_pictures, missing_tools, page_url, serving
 
 pytestmark = pytest.mark.browser
 
@@ -183,6 +183,30 @@ def test_throttled_stream_shows_layer_0_before_the_file_arrives(scene, tmp_path)
     assert final["tFirstPicture"] < final["tComplete"] / 2
     assert lit_share(image(tmp_path / "first.png")) > 0.005
     assert final["layersShown"] == len(info["layers"])
+
+
+def test_the_page_keeps_the_frame_that_showed_each_layer(scene, tmp_path):
+    """With ``layerPictures=1`` (the benchmark's quality at every layer) the page keeps one frame
+    per non-empty layer shown, in order, each saying which layers it holds; the last is the
+    finished picture, and each adds to the one before."""
+    spc, info = scene
+    with serving([spc], throttle_kbps=160) as base:
+        report = drive([{"url": page_url(base, spc, layerPictures=1),
+                         "captures": [{"when": "complete", "path": str(tmp_path / "all.png")}],
+                         "evaluate": LAYER_PICTURES}])[0]
+    assert report["error"] is None, (report["error"], report["console"][-5:])
+    pictures = layer_pictures(report)
+    nonempty = [layer["index"] for layer in info["layers"] if layer["gaussians"] > 0]
+    shown = [p["layer"] for p in pictures]
+    assert shown == sorted(set(shown)) and set(shown) <= set(nonempty) and shown[0] == nonempty[0]
+    assert all(p["layersInPicture"] >= p["layer"] + 1 for p in pictures)
+    assert pictures[-1]["layersInPicture"] == len(info["layers"])
+    assert [p["tShown"] for p in pictures] == sorted(p["tShown"] for p in pictures)
+    assert pictures[0]["bytesLoaded"] < spc.stat().st_size  # the throttle kept the rest away
+    assert psnr(image(tmp_path / "all.png"), pictures[-1]["image"]) >= 60
+    lit = [lit_share(p["image"]) for p in pictures]
+    assert len(pictures) >= 2 and lit == sorted(lit) and lit[-1] > lit[0]
+    assert psnr(pictures[-1]["image"], pictures[0]["image"]) < 40
 
 
 def test_the_benchmark_page_decodes_and_builds_a_resource(scene):

@@ -8,7 +8,9 @@ no chromium, no JavaScript decoder), so tests can skip with that reason.
 
 from __future__ import annotations
 
+import base64
 import contextlib
+import io
 import json
 import os
 import shutil
@@ -83,3 +85,20 @@ def drive(visits: list[dict], timeout: float = 300.0) -> list[dict]:
     if done.returncode != 0:
         raise RuntimeError(f"drive.mjs failed ({done.returncode}): {done.stderr.strip()[-2000:]}")
     return json.loads(done.stdout)["visits"]
+
+
+LAYER_PICTURES = "window.spcViewerLayerPictures ?? []"
+"""A visit's ``evaluate`` that returns the frames a page opened with ``layerPictures=1`` kept."""
+
+
+def layer_pictures(report: dict) -> list[dict]:
+    """The frames of a visit that evaluated :data:`LAYER_PICTURES`, one per non-empty layer shown:
+    its fields, with ``image`` (float RGB in [0, 1]) in place of the PNG data URL."""
+    from spcodec.imaging.images import read_image
+
+    pictures = []
+    for entry in report["value"] or []:
+        png = base64.b64decode(entry.pop("png").split(",", 1)[1])
+        pictures.append({**entry, "image": read_image(io.BytesIO(png))})  # PIL reads a buffer too
+    return pictures
+

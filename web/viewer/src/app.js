@@ -13,6 +13,8 @@
 //                      Every scene is stood upright in a +Y-up world: an .spc by the axis its
 //                      metadata stores, a .glb by its node's rotation (glTF is +Y up).
 //   capture=1          no overlay, and keep the frame of the first picture (tests, benchmark)
+//   layerPictures=1    also keep the frame that showed each non-empty layer, in
+//                      `window.spcViewerLayerPictures` (benchmark: quality at every layer)
 //
 // Progress is shown on the page and kept in `window.spcViewer` (see `state` below), which the
 // browser tests and the benchmark read.
@@ -224,6 +226,7 @@ async function showSpc(app, camera, whenShown) {
         // kept for tests, which may look later, when more layers are on screen.
         if (params.has('capture')) window.spcViewerFirstPicture = canvas.toDataURL('image/png');
       }
+      if (cloud.count > 0 && params.has('layerPictures')) keepLayerPicture(event);
       showProgress();
     }));
     showProgress();
@@ -236,6 +239,14 @@ async function showSpc(app, camera, whenShown) {
     state.layerCount = Math.min(state.layerCount ?? Infinity, maxLayer + 1);
   }
   await Promise.all(shown);
+}
+
+/** The frame that showed the layer of `event`, with what it holds: layers decoded after this one
+ * but before its frame are in it too (`layersInPicture`), as when bytes come faster than frames. */
+function keepLayerPicture(event) {
+  window.spcViewerLayerPictures ??= [];
+  window.spcViewerLayerPictures.push({ layer: event.index, layersInPicture: state.layersDecoded,
+    bytesLoaded: state.bytesLoaded, tShown: event.tShown, png: canvas.toDataURL('image/png') });
 }
 
 /** The package's PlayCanvas loader, with the page's bookkeeping of requests and bytes. */

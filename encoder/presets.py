@@ -12,8 +12,10 @@ biker         0.87 MB, 36.8 dB      1.27 MB, 46.6 dB      1.46 MB, 47.0 dB      
 donut         0.35 MB, 28.5 dB      0.48 MB, 40.7 dB      0.56 MB, 42.1 dB      0.65 MB, 48.5 dB
 ============  ====================  ====================  ====================  ===============
 
-(fourth_st and biker were decoded from SPZ, so SPZ re-encodes them almost exactly.) ``docs/RESULTS.md``
-has the full, current table; this one records why the defaults are what they are.
+(fourth_st and biker were decoded from SPZ, so SPZ re-encodes them almost exactly; since their
+positions are stored exactly on SPZ's grid, their files are 2-3 % larger than above, RESULTS 14.4.)
+``docs/RESULTS.md`` has the full, current table; this one records why the defaults are what they
+are.
 """
 
 from __future__ import annotations

@@ -79,8 +79,9 @@ MAX_LAYER = Bounded(int, 0)
 PORT = Bounded(int, 0, 65535)
 THROTTLE = Bounded(float, 0, exclusive=True)
 """``serve --throttle`` in kbit/s: any positive speed."""
-PATCH_LAYERS_DEFAULT = 3
-"""``PatchConfig.layers``, for --help without importing the encoder; a test keeps them equal."""
+PATCH_LAYERS_DEFAULT, NESTED_PATCH_LAYERS = 3, 6
+"""``PatchConfig.layers`` and ``encoder.config.NESTED_PATCH_LAYERS``, for --help without importing
+the encoder; a test keeps them equal."""
 RETRAIN_DEFAULTS = {"iterations": 3000, "finish_iterations": 600, "views": 48, "resolution": 400,
                     "close_views": 48}
 """``RetrainConfig`` defaults shown by --help (the same test keeps them equal)."""
@@ -333,7 +334,8 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
                    default=None, metavar="N",
                    help="number of patch layers: %(type)s; other than the default, each holds "
                    "1.5 times the Gaussians of the one before (default: "
-                   f"{PATCH_LAYERS_DEFAULT}: 7, 16.5 and 76.5 %% of the patch)")
+                   f"{PATCH_LAYERS_DEFAULT}: 7, 16.5 and 76.5 %% of the patch; "
+                   f"{NESTED_PATCH_LAYERS} with --nested)")
     p.add_argument("--position-bits", type=Bounded(int, 8, 30), default=None, metavar="B",
                    help="bits of precision of the patch positions over each layer's box: "
                    "%(type)s (default: set by --preset: 14 for transparent, 16 otherwise)")
@@ -452,7 +454,7 @@ def encode_config(args: argparse.Namespace):
     """The EncoderConfig the encode options describe (checked, with one-line errors)."""
     import dataclasses
 
-    from .encoder.config import EncoderConfig, geometric_fractions
+    from .encoder.config import NESTED_PATCH_LAYERS, EncoderConfig, geometric_fractions
     from .encoder.presets import preset_config, retrains
     from .encoder.ratecontrol import parse_size
 
@@ -480,9 +482,12 @@ def encode_config(args: argparse.Namespace):
         config.target_size = parse_size(args.target_size)
     config.target_psnr = args.target_psnr
     config.up, config.antialiased = args.up, args.antialiased
-    if args.patch_layers is not None and args.patch_layers != config.patch.layers:
-        config.patch = dataclasses.replace(config.patch, layers=args.patch_layers,
-                                           layer_fractions=geometric_fractions(args.patch_layers))
+    layers = args.patch_layers
+    if layers is None and retrain and args.nested:
+        layers = NESTED_PATCH_LAYERS
+    if layers is not None and layers != config.patch.layers:
+        config.patch = dataclasses.replace(config.patch, layers=layers,
+                                           layer_fractions=geometric_fractions(layers))
     if args.position_bits is not None:
         config.patch = dataclasses.replace(config.patch, position_bits=args.position_bits)
     if args.tau_max is not None:

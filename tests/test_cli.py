@@ -279,10 +279,12 @@ def test_help_gives_every_option_its_default_and_range():
 
 
 def test_help_defaults_match_the_encoder():
-    from spcodec.cli import CHECKPOINT_EVERY, PATCH_LAYERS_DEFAULT, RETRAIN_DEFAULTS
+    from spcodec.cli import CHECKPOINT_EVERY, NESTED_PATCH_LAYERS, PATCH_LAYERS_DEFAULT, RETRAIN_DEFAULTS
+    from spcodec.encoder import config
     from spcodec.encoder.config import PatchConfig, RetrainConfig
     from spcodec.encoder.retrain import RunControl
     assert PATCH_LAYERS_DEFAULT == PatchConfig().layers
+    assert NESTED_PATCH_LAYERS == config.NESTED_PATCH_LAYERS
     assert CHECKPOINT_EVERY == RunControl().checkpoint_every
     defaults = RetrainConfig()
     assert RETRAIN_DEFAULTS == {name: getattr(defaults, name) for name in RETRAIN_DEFAULTS}

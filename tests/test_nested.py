@@ -11,8 +11,14 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import spcodec
-from spcodec.cli import main
-from spcodec.encoder.config import EncoderConfig, PatchConfig, RetrainConfig, geometric_fractions
+from spcodec.cli import build_parser, encode_config, main
+from spcodec.encoder.config import (
+    NESTED_PATCH_LAYERS,
+    EncoderConfig,
+    PatchConfig,
+    RetrainConfig,
+    geometric_fractions,
+)
 from spcodec.encoder.nested import NestedEncoder, layer_priority, layers_of, prefix_schedule
 from spcodec.encoder.pipeline import encode
 from spcodec.synthetic import make_scene
@@ -153,3 +159,18 @@ def test_nested_needs_retraining(tmp_path, scene, capsys):
     assert "--nested only apply to retraining" in capsys.readouterr().err
     assert not out.exists()
 
+
+
+@pytest.mark.parametrize("extra, layers", [
+    ([], PatchConfig().layers),
+    (["--nested"], NESTED_PATCH_LAYERS),
+    (["--nested", "--patch-layers", "4"], 4),
+    (["--nested", "--patch-layers", str(PatchConfig().layers)], PatchConfig().layers),
+])
+def test_nested_encodes_take_finer_layers_unless_told(extra, layers):
+    args = build_parser().parse_args(["encode", "in.ply", "-o", "out.spc", *extra])
+    patch = encode_config(args).patch
+    assert patch.layers == layers
+    default = layers == PatchConfig().layers
+    assert patch.layer_fractions == (PatchConfig().layer_fractions if default
+                                     else geometric_fractions(layers))

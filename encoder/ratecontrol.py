@@ -87,11 +87,12 @@ def plan_count(target: int, patch_count: int, trial: Callable[[int], int]) -> Ra
     its size. Raises a UsageError when the target is below what the scene can reach.
     """
     fixed = trial(0)
-    smallest = trial(min(MIN_PATCH, patch_count)) if patch_count else fixed
+    fewest = min(MIN_PATCH, patch_count)
+    smallest = trial(fewest) if patch_count else fixed
     if target < smallest * (1 - TOLERANCE):
         raise UsageError(f"target size {target:,} bytes is too small for this scene: the sketch "
                          f"layer and headers alone take {fixed:,} bytes and the smallest useful "
-                         f"file ({min(MIN_PATCH, patch_count)} patch Gaussians) {smallest:,}; "
+                         f"file ({fewest} patch Gaussians) {smallest:,}; "
                          f"ask for at least {smallest:,} bytes")
     full = trial(patch_count)
     if target >= full:
@@ -99,11 +100,16 @@ def plan_count(target: int, patch_count: int, trial: Callable[[int], int]) -> Ra
             f"target {target:,} bytes is above the unpruned encode ({full:,} bytes): every patch "
             "Gaussian is kept and the file stays smaller than the target")
         return RatePlan(patch_count, full, fixed, full, note)
-    lo, hi = (0, fixed), (patch_count, full)
-    best = hi
+    # the first patch Gaussian brings the codebooks, a step in size: interpolate from past it
+    lo, hi = ((fewest, smallest) if smallest < target else (0, fixed)), (patch_count, full)
+    best = min([hi, lo] if lo[0] else [hi], key=lambda known: abs(known[1] - target))
+    moved = None  # which end the last trial replaced
     for _ in range(MAX_TRIALS):
         count = _interpolate(target, *lo, *hi)
-        if not lo[0] < count < hi[0]:  # the line points at a known end: bisect instead
+        # the line points at a known end, or the same end moved twice (sizes bend: codebooks
+        # fill up with the first few hundred Gaussians, and the line then keeps landing on one
+        # side, a little closer each time): bisect instead
+        if not lo[0] < count < hi[0] or moved == "twice":
             count = (lo[0] + hi[0]) // 2
         if count in (lo[0], hi[0]):
             break
@@ -112,7 +118,9 @@ def plan_count(target: int, patch_count: int, trial: Callable[[int], int]) -> Ra
             best = (count, size)
         if within(size, target):
             break
-        lo, hi = (lo, (count, size)) if size > target else ((count, size), hi)
+        side = "hi" if size > target else "lo"
+        moved = "twice" if side == moved else side
+        lo, hi = (lo, (count, size)) if side == "hi" else ((count, size), hi)
     return RatePlan(best[0], best[1], fixed, full)
 
 

@@ -121,7 +121,7 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
             cloud, refined, found, sketch, writer, config, weights,
             lambda part, part_writer: factor_trial(part, cloud.subset(part.patch_idx),
                                                    part_writer, config, weights),
-            progress, times)
+            progress, times, file_size=config.target_size)
         choice = encode_pruned_patch(cloud, sketch, cloud.subset(sketch.patch_idx), writer,
                                      config, prepared, weights, dataset, control, progress,
                                      times)
@@ -253,16 +253,17 @@ def _cap_sketch(cloud: GaussianCloud, refined: RefineResult | None, found: int,
                 sketch: SketchOutcome, writer: SceneWriter, config: EncoderConfig,
                 importance: np.ndarray,
                 file_of: Callable[[SketchOutcome, SceneWriter], bytes | None],
-                progress: ProgressFactory, times: dict[str, float]
+                progress: ProgressFactory, times: dict[str, float], file_size: int | None = None
                 ) -> tuple[SketchOutcome, SceneWriter]:
     """Move the sketch clusters of least ``importance`` per Gaussian to the patch until the
     sketch layer of ``file_of(sketch, writer)`` (None: nothing to judge) ends within
-    ``config.max_sketch_share`` of it: the sketch and its writer."""
+    ``config.max_sketch_share`` of it, or of ``file_size`` when rate control will make the file
+    that size whatever the sketch keeps: the sketch and its writer."""
     moved = 0
     while refined is not None and sketch.clusters and config.max_sketch_share is not None:
         data = file_of(sketch, writer)
         keep = None if data is None else \
-            _clusters_to_keep(data, refined, importance, config.max_sketch_share)
+            _clusters_to_keep(data, refined, importance, config.max_sketch_share, file_size)
         if keep is None:
             break
         before = len(refined.patch)
@@ -275,30 +276,34 @@ def _cap_sketch(cloud: GaussianCloud, refined: RefineResult | None, found: int,
 
 
 def _clusters_to_keep(data: bytes, refined: RefineResult, importance: np.ndarray,
-                      max_share: float) -> list[int] | None:
+                      max_share: float, file_size: int | None = None) -> list[int] | None:
     """Which refined clusters to keep as sketch so that the sketch layer ends within
-    ``max_share`` of the file (None: it already does).
+    ``max_share`` of the file, or of ``file_size`` when that is fixed (None: it already does).
 
     The clusters that do least for the picture (lowest mean importance) go to the patch first.
     How many: with the sketch layer's fixed part H (header, metadata), sketch bytes S over K
     Gaussians, and patch bytes P at p per Gaussian, keeping a fraction f of the sketch gives a
-    layer of H + fS in a file of H + fS + P + (1 - f)Kp; solve for the share, with a 3 % margin
-    for the difference between this estimate and the encoded result.
+    layer of H + fS in a file of H + fS + P + (1 - f)Kp (or of ``file_size``: rate control
+    fills the rest with patch); solve for the share, with a 3 % margin for the difference
+    between this estimate and the encoded result.
     """
     info = inspect(data).to_json()
     first = info["layers"][0]
     end, total = first.get("inner_end_offset", first["end_offset"]), info["file_size"]
     stored_end = end if first["end_offset"] is None else first["end_offset"]
-    if stored_end <= max_share * info["stored_size"]:
+    if stored_end <= max_share * (file_size or info["stored_size"]):
         return None
     sketch_bytes = sum(sec["length"] for sec in info["sections"]
                        if sec["type"].startswith("SKETCH"))
     fixed, count = end - sketch_bytes, info["layers"][0]["gaussians"]
-    patch_bytes, patch_count = total - end, info["gaussians"] - count
-    per_patch = patch_bytes / patch_count if patch_count else sketch_bytes / max(count, 1)
     share = 0.97 * max_share
-    fraction = (share * (fixed + patch_bytes + count * per_patch) - fixed) / \
-        (sketch_bytes * (1 - share) + share * count * per_patch)
+    if file_size is not None:
+        fraction = (share * file_size - fixed) / max(sketch_bytes, 1)
+    else:
+        patch_bytes, patch_count = total - end, info["gaussians"] - count
+        per_patch = patch_bytes / patch_count if patch_count else sketch_bytes / max(count, 1)
+        fraction = (share * (fixed + patch_bytes + count * per_patch) - fixed) / \
+            (sketch_bytes * (1 - share) + share * count * per_patch)
     sizes = np.array([len(c) for c in refined.clusters])
     density = np.array([importance[c].mean() for c in refined.clusters])
     order = np.argsort(-density, kind="stable")

@@ -99,9 +99,13 @@ def scene_weights(cloud: GaussianCloud, config: EncoderConfig,
 def factor_trial(sketch: SketchOutcome, patch: GaussianCloud, writer: SceneWriter,
                  config: EncoderConfig, weights: np.ndarray) -> bytes | None:
     """The file with the patch pruned by the retrain config's factor and coded without
-    retraining (None with a target size or without retraining): the retrained file's layout to
-    within the gains of training, cheap enough to size the sketch layer's share before training."""
-    if config.retrain is None or config.target_size is not None or config.target_psnr is not None:
+    retraining: the retrained file's layout to within the gains of training, cheap enough to size
+    the sketch layer's share before training. With a target size, the sketch alone (the file's
+    size is the target whatever the sketch keeps); None with a target PSNR (the size is what
+    quality control finds) or without retraining."""
+    if config.target_size is not None:
+        return writer.write(None)
+    if config.retrain is None or config.target_psnr is not None:
         return None
     return _pruned_file(writer, PatchEncoder(config.patch, seed=config.seed), patch,
                         weights[sketch.patch_idx],

@@ -95,6 +95,21 @@ def test_the_sketch_layer_is_capped_to_its_share_of_the_file():
     assert np.array_equal(np.sort(capped.source_index), np.arange(len(scene.cloud)))
 
 
+
+def test_a_target_size_caps_the_sketch_to_its_share_of_the_target():
+    """Rate control makes the file the target's size whatever the sketch keeps, so the cap is
+    judged against the target: left alone, a small target would be mostly sketch."""
+    scene = make_scene(5, curves=16, per_curve=300, blobs=1200)
+    target = len(encode(scene.cloud, FAST).data) // 2
+    free = encode(scene.cloud, dataclasses.replace(FAST, max_sketch_share=None, target_size=target))
+    capped = encode(scene.cloud, dataclasses.replace(FAST, max_sketch_share=0.1, target_size=target))
+    assert free.stats["layer_ends"][0] > 0.3 * target
+    assert 0.0 < capped.stats["layer_ends"][0] <= 0.1 * target
+    assert capped.stats["sketch"]["moved_to_patch_for_share"] > 0
+    assert abs(len(capped.data) - target) <= 0.05 * target
+    assert len(spcodec.decode(capped.data)) < len(scene.cloud)  # pruned to fit, sketch and all
+
+
 @pytest.mark.parametrize("sh_degree", [0, 1, 2])
 def test_every_sh_degree_encodes(sh_degree):
     scene = make_scene(6, curves=4, per_curve=200, blobs=500, sh_degree=sh_degree)

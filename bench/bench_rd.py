@@ -57,7 +57,9 @@ METHODS = ("sp", "pr", "noretrain", "spz", "sog", "spz4")
 LABELS = {"sp": "S&P++ (retrained)", "pr": "Prune&Retrain", "noretrain": "no-retrain presets",
           "spz": "SPZ", "sog": "SOG", "spz4": "S&P++ at SPZ/4", "original": "original",
           # rows added by hand from single encodes (docs/RESULTS.md says which)
-          "sp-highrate": "S&P++, highrate codebooks", "sp-target": "S&P++ --target-size"}
+          "sp-highrate": "S&P++, highrate codebooks", "sp-target": "S&P++ --target-size",
+          "sp-target-uncapped": "S&P++ --target-size, sketch not capped (before 13.6)",
+          "spz4-uncapped": "S&P++ at SPZ/4, sketch not capped (before 13.6)"}
 
 
 def scene_setup(name: str, args) -> dict:
@@ -232,7 +234,9 @@ def plot(args) -> None:
     rows = json.loads(args.json.read_text())
     args.plot.mkdir(parents=True, exist_ok=True)
     styles = {"sp": ("o-", "C0"), "pr": ("s--", "C1"), "noretrain": ("^:", "C2"),
-              "spz": ("*", "C3"), "sog": ("X", "C5"), "spz4": ("P", "C4"), "original": ("D", "k")}
+              "spz": ("*", "C3"), "sog": ("X", "C5"), "spz4": ("P", "C4"), "original": ("D", "k"),
+              "sp-target": ("o-", "C6"), "sp-target-uncapped": ("x:", "C7"),
+              "spz4-uncapped": ("x", "C4")}
     for name in dict.fromkeys(r["scene"] for r in rows):
         panels = [(key, title) for key, title in PANELS
                   if any(key in r for r in rows if r["scene"] == name)]
@@ -245,7 +249,7 @@ def plot(args) -> None:
                 if pts:
                     ax.plot([p[0] / 1e6 for p in pts], [p[1] for p in pts], style,
                             color=colour, label=LABELS[method],
-                            markersize=9 if method in ("spz", "sog", "spz4") else 5)
+                            markersize=9 if method in ("spz", "sog", "spz4", "spz4-uncapped") else 5)
             ax.set_xscale("log")
             ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
             ax.xaxis.set_minor_formatter(FuncFormatter(_minor_label))

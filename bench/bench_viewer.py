@@ -29,7 +29,7 @@ Rendering is WebGL 2 on SwiftShader (no GPU here), so "on screen" includes a sof
 sort and draw; the share of bytes at the first picture does not depend on it.
 
 ``--file SCENE=PATH`` judges a given .spc instead (a nested encode, say: ``spcodec encode X.ply
--o X.spc --nested --patch-layers 6``).
+-o X.spc --nested``).
 
     python bench/bench_viewer.py [--scenes fourth_st guitar] [--kbps 20000] [--repeat 3]
                                  [--layer-kbps 2000 20000 100000] [--file guitar=/path/g.spc]

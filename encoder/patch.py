@@ -74,6 +74,7 @@ def input_grid(xyz: np.ndarray, bits: int) -> np.ndarray | None:
         return None
     span = xyz.max(axis=0) - xyz.min(axis=0)
     asked = max(float(span.max()), 1e-30) / ((1 << bits) - 1)
+
     def on_grid(values: np.ndarray, exponent: int) -> bool:
         scaled = values * 2.0 ** exponent
         return bool(np.array_equal(scaled, np.round(scaled)))

@@ -103,13 +103,12 @@ def plan_count(target: int, patch_count: int, trial: Callable[[int], int]) -> Ra
     # the first patch Gaussian brings the codebooks, a step in size: interpolate from past it
     lo, hi = ((fewest, smallest) if smallest < target else (0, fixed)), (patch_count, full)
     best = min([hi, lo] if lo[0] else [hi], key=lambda known: abs(known[1] - target))
-    moved = None  # which end the last trial replaced
+    above, streak = None, 0  # which side of the target the last trials landed, how many in a row
     for _ in range(MAX_TRIALS):
         count = _interpolate(target, *lo, *hi)
-        # the line points at a known end, or the same end moved twice (sizes bend: codebooks
-        # fill up with the first few hundred Gaussians, and the line then keeps landing on one
-        # side, a little closer each time): bisect instead
-        if not lo[0] < count < hi[0] or moved == "twice":
+        # the line points at a known end, or it keeps landing on one side (sizes bend: codebooks
+        # fill up with the first few hundred Gaussians, so it creeps up on the target): bisect
+        if not lo[0] < count < hi[0] or streak >= 2:
             count = (lo[0] + hi[0]) // 2
         if count in (lo[0], hi[0]):
             break
@@ -118,9 +117,9 @@ def plan_count(target: int, patch_count: int, trial: Callable[[int], int]) -> Ra
             best = (count, size)
         if within(size, target):
             break
-        side = "hi" if size > target else "lo"
-        moved = "twice" if side == moved else side
-        lo, hi = (lo, (count, size)) if side == "hi" else ((count, size), hi)
+        streak = streak + 1 if (size > target) == above else 1
+        above = size > target
+        lo, hi = (lo, (count, size)) if above else ((count, size), hi)
     return RatePlan(best[0], best[1], fixed, full)
 
 

@@ -160,7 +160,6 @@ def test_nested_needs_retraining(tmp_path, scene, capsys):
     assert not out.exists()
 
 
-
 @pytest.mark.parametrize("extra, layers", [
     ([], PatchConfig().layers),
     (["--nested"], NESTED_PATCH_LAYERS),

@@ -101,4 +101,3 @@ def layer_pictures(report: dict) -> list[dict]:
         png = base64.b64decode(entry.pop("png").split(",", 1)[1])
         pictures.append({**entry, "image": read_image(io.BytesIO(png))})  # PIL reads a buffer too
     return pictures
-

@@ -275,6 +275,14 @@ NESTED_PATCH_LAYERS = 6
 viewer gets a trained prefix at 10, 16, 22, 32, 47 and 68 % of the bytes instead of 10, 18, 33."""
 
 
+def codebook_entries(config: "PatchConfig", groups: int) -> int:
+    """Entries of a codebook that codes ``groups`` vectors under ``config``'s size rule."""
+    if config.groups_per_entry is None:
+        return config.codebook_size
+    by_count = int(groups // config.groups_per_entry)
+    return max(1, min(config.codebook_size, max(config.min_codebook_entries, by_count)))
+
+
 def geometric_fractions(layers: int, ratio: float = LAYER_RATIO) -> tuple[float, ...]:
     """Shares of ``layers`` patch layers, each ``ratio`` times the one before, summing to 1."""
     if layers < 1 or ratio <= 0:
@@ -287,8 +295,16 @@ def geometric_fractions(layers: int, ratio: float = LAYER_RATIO) -> tuple[float,
 class PatchConfig:
     """Parameters of the patch encoder; defaults follow the paper unless a comment says why not."""
 
-    #: Entries per codebook (the paper and Reduced-3DGS: 256, i.e. one-byte indices).
+    #: Entries per codebook (the paper and Reduced-3DGS: 256, i.e. one-byte indices), at most.
     codebook_size: int = 256
+    #: Fewer entries for few Gaussians: a codebook gets at most one entry per this many of the
+    #: groups it codes (and at least ``min_codebook_entries``); None: always ``codebook_size``.
+    #: At a small target the fixed 256 entries cost more than the Gaussians they serve: kacytran
+    #: (SH 3) at a quarter of SPZ's bytes kept 1,255 patch Gaussians beside 25 kB of codebooks,
+    #: 52 % of the file. See :func:`codebook_entries`.
+    groups_per_entry: float | None = None
+    #: The floor of the rule above.
+    min_codebook_entries: int = 16
     #: Entry dimension per attribute: the attribute's components are split into groups of this
     #: size, one index per group (the format allows any divisor of the width, from scalar to full
     #: vector quantization). The defaults (preset "balanced") quantize scale per axis and rotation

@@ -22,7 +22,7 @@ from spcodec.decoder.layers import fill_patch_attributes
 from spcodec.sections import Codebook, PatchPositions
 from spcodec.writer import PatchLayer
 
-from .config import PatchConfig
+from .config import PatchConfig, codebook_entries
 from .draco import encode_ordered, grid_for
 from .kmeans import exhaustive_codebook, nearest, sampled_codebook
 from .morton import morton_codes
@@ -293,6 +293,8 @@ class PatchEncoder:
         cfg = self.config
         if cfg.codebook_size > MAX_CODEBOOK_ENTRIES or cfg.codebook_size < 1:
             raise ValueError(f"codebook_size must be in 1..{MAX_CODEBOOK_ENTRIES}")
+        if cfg.groups_per_entry is not None and not cfg.groups_per_entry > 0:
+            raise ValueError("groups_per_entry must be > 0 or None")
         if weights is not None and np.shape(weights) != (len(cloud),):
             raise ValueError(f"weights must have shape ({len(cloud)},), got {np.shape(weights)}")
         values = coded_attributes(cloud)
@@ -303,8 +305,8 @@ class PatchEncoder:
             if len(cloud) == 0:
                 entries = np.zeros((1, dim), np.float16)
             else:
-                entries = train_codebook(values[attr], dim, cfg.codebook_size, weights, cfg,
-                                         seeds[attr])
+                size = codebook_entries(cfg, len(cloud) * (attr.width // dim))
+                entries = train_codebook(values[attr], dim, size, weights, cfg, seeds[attr])
             return Codebook(attr, entries), assign_attribute(attr, values[attr], entries)
 
         done = dict(zip(values, self._map(train, list(values))))

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 import spcodec
 from spcodec.attributes import PatchAttribute
 from spcodec.cloud import GaussianCloud
-from spcodec.encoder.config import PatchConfig
+from spcodec.encoder.config import PatchConfig, codebook_entries
 from spcodec.encoder.morton import morton_codes
 from spcodec.encoder.patch import PatchEncoder, coded_attributes, dequantize, quantized_cloud
 from spcodec.synthetic import make_scene
@@ -43,6 +43,34 @@ def test_quantize_gives_a_codebook_and_indices_per_attribute(cloud, quantized):
         assert idx.dtype == np.uint8 and idx.shape == (len(cloud), cb.groups)
         assert idx.max() < len(cb.entries)
     assert len(quantized) == len(cloud)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 10**6), st.integers(0, 10**6), st.floats(0.5, 500),
+       st.integers(1, 256), st.integers(1, 256))
+def test_codebook_entries_grow_with_the_groups_and_stay_in_range(a, b, per_entry, floor, cap):
+    config = PatchConfig(codebook_size=cap, groups_per_entry=per_entry, min_codebook_entries=floor)
+    small, large = sorted((a, b))
+    assert 1 <= codebook_entries(config, small) <= codebook_entries(config, large) <= cap
+    entries = codebook_entries(config, large)
+    assert min(cap, floor) <= entries <= max(floor, large / per_entry)  # one entry per per_entry groups
+    assert entries == cap or entries == floor or entries > large / per_entry - 1
+    assert codebook_entries(dataclasses.replace(config, groups_per_entry=None), small) == cap
+
+
+def test_few_gaussians_get_small_codebooks_and_still_decode_exactly(cloud):
+    few = cloud.subset(np.arange(300))
+    config = dataclasses.replace(CONFIG, groups_per_entry=32, min_codebook_entries=4)
+    quantized = PatchEncoder(config, seed=3).quantize(few)
+    for cb in quantized.codebooks:
+        expected = codebook_entries(config, len(few) * cb.groups)
+        assert len(cb.entries) <= expected < CONFIG.codebook_size
+        assert quantized.indices[cb.attribute].max() < len(cb.entries)
+    sizes = {cb.attribute.name: len(cb.entries) for cb in quantized.codebooks}
+    assert sizes["SH_BAND_2"] <= 300 // 32 and sizes["SCALE"] <= 900 // 32
+    full = PatchEncoder(CONFIG, seed=3).quantize(few)
+    assert sum(cb.entries.size for cb in quantized.codebooks) < sum(
+        cb.entries.size for cb in full.codebooks) / 4
 
 
 def test_dequantize_returns_the_selected_entries_close_to_the_input(cloud, quantized):

@@ -228,7 +228,8 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
         top = prune_by_importance(importance, fit.count)
         trained, quantized, kept = trained.subset(top), quantized.subset(top), kept[top]
         importance = importance[top]
-    report.done(f"{len(kept)} Gaussians, codebooks of {encoder.config.codebook_size} entries")
+    entries = max((len(cb.entries) for cb in quantized.codebooks), default=0)
+    report.done(f"{len(kept)} Gaussians, codebooks of up to {entries} entries")
     times["quantize"] = time.perf_counter() - t
 
     t = time.perf_counter()

@@ -58,7 +58,7 @@ class RunControl:
     """How a long encode runs; none of it changes the bytes written (so it is not in the
     file's settings)."""
 
-    #: "auto" (CUDA with gsplat when present), "cpu" or "cuda[:N]".
+    #: "auto" (CUDA when torch sees a GPU), "cpu" or "cuda[:N]".
     device: str = "auto"
     #: Checkpoint file (None: none is written) and how often it is rewritten, in optimizer steps.
     #: It is removed when the encode completes.

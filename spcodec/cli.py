@@ -404,8 +404,8 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
     p.add_argument("--antialiased", action="store_true",
                    help="render with Mip-Splatting's antialiased opacity (default: off)")
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
-                   help="auto: CUDA with gsplat when available, else the CPU (default: "
-                   "%(default)s)")
+                   help="auto: CUDA when torch sees a GPU (rendered by gsplat when installed, "
+                   "else by the torch renderer), else the CPU (default: %(default)s)")
     p.add_argument("--threads", type=Bounded(int, 1, 1024), default=None, metavar="N",
                        help="CPU threads for rendering and training: %(type)s (default: 1; the CPU "
                        "renderer gains little from more and, on a busy 2-core machine, ran 4-8x "
@@ -580,8 +580,8 @@ def _add_view_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-layer", type=MAX_LAYER, default=None, metavar="K",
                    help="use layers 0..K of an .spc: %(type)s (default: every layer)")
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
-                   help="auto: gsplat on CUDA when available, else the CPU renderer (default: "
-                   "%(default)s)")
+                   help="auto: CUDA when torch sees a GPU (rendered by gsplat when installed, "
+                   "else by the torch renderer), else the CPU (default: %(default)s)")
     p.add_argument("--up", default="-y", choices=["+x", "-x", "+y", "-y", "+z", "-z"],
                    metavar="AXIS", help="the scene's up axis for sampled views, one of "
                    "+x -x +y -y +z -z; -y suits COLMAP-derived scenes, +z z-up ones; write "

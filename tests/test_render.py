@@ -562,12 +562,17 @@ def test_render_image_and_device_resolution() -> None:
     assert resolve_device("cpu") == torch.device("cpu")
     with pytest.raises(ValueError):
         resolve_device("tpu")
-    if gsplat_problem() is not None:
+    assert resolve_backend("auto", torch.device("cpu")) == "torch"
+    if not torch.cuda.is_available():
         assert resolve_device("auto") == torch.device("cpu")
-        assert resolve_backend("auto", torch.device("cpu")) == "torch"
         with pytest.raises(RuntimeError, match="requested but") as err:
             resolve_device("cuda")
         assert "\n" not in str(err.value)
+    else:  # CUDA needs no gsplat: the torch renderer runs there when gsplat is missing
+        assert resolve_device("auto").type == "cuda"
+        if gsplat_problem() is not None:
+            assert resolve_backend("auto", torch.device("cuda")) == "torch"
+    if gsplat_problem() is not None:
         with pytest.raises(RuntimeError, match="gsplat"):
             render(GaussianParams.from_cloud(cloud), cam, backend="gsplat")
 

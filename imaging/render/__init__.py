@@ -7,7 +7,7 @@ Public API (the only names other modules should rely on)::
     result.image (H, W, 3), result.alpha (H, W), result.visible (N,), result.radii (N,)
     result.means2d_grad()                  # (N, 2) d loss / d screen position, after backward
     img = render_image(cloud, camera)      # numpy float32 (H, W, 3) in [0, 1]
-    dev = resolve_device("auto")           # cuda when CUDA + gsplat work, else cpu
+    dev = resolve_device("auto")           # cuda when torch sees a GPU, else cpu
 
 Torch is imported here and by what trains with it (the encoder, :mod:`spcodec.imaging.training`),
 never by the decoder or the format layer.

@@ -305,7 +305,7 @@ class PatchEncoder:
             if len(cloud) == 0:
                 entries = np.zeros((1, dim), np.float16)
             else:
-                size = codebook_entries(cfg, len(cloud) * (attr.width // dim))
+                size = codebook_entries(cfg, len(cloud), attr.width // dim)
                 entries = train_codebook(values[attr], dim, size, weights, cfg, seeds[attr])
             return Codebook(attr, entries), assign_attribute(attr, values[attr], entries)
 

@@ -148,6 +148,10 @@ def encode_pruned_patch(cloud: GaussianCloud, sketch: SketchOutcome, patch: Gaus
                          "unpruned_bytes": plan.full_bytes, "predicted_count": plan.count}
         if plan.note:
             stats["rate"]["note"] = plan.note
+        if encoder.config.groups_per_entry is not None:  # the codebooks the plan sized for
+            encoder = PatchEncoder(dataclasses.replace(encoder.config,
+                                                       codebooks_sized_for=plan.count),
+                                   seed=encoder.seed, jobs=encoder.jobs)
         margin = TRAIN_MARGIN if retrain is None or retrain.snap_step is None else SNAP_MARGIN
         keep = plan.count if retrain is None else \
             min(len(patch), math.ceil(plan.count * (1 + margin)))

@@ -454,7 +454,12 @@ def encode_config(args: argparse.Namespace):
     """The EncoderConfig the encode options describe (checked, with one-line errors)."""
     import dataclasses
 
-    from .encoder.config import NESTED_PATCH_LAYERS, EncoderConfig, geometric_fractions
+    from .encoder.config import (
+        NESTED_PATCH_LAYERS,
+        TARGET_GROUPS_PER_ENTRY,
+        EncoderConfig,
+        geometric_fractions,
+    )
     from .encoder.presets import preset_config, retrains
     from .encoder.ratecontrol import parse_size
 
@@ -480,6 +485,8 @@ def encode_config(args: argparse.Namespace):
         gzip=args.gzip), retrain=retrain)
     if args.target_size is not None:
         config.target_size = parse_size(args.target_size)
+        # codebooks shrink with the patch, so small targets spend their bytes on Gaussians
+        config.patch = dataclasses.replace(config.patch, groups_per_entry=TARGET_GROUPS_PER_ENTRY)
     config.target_psnr = args.target_psnr
     config.up, config.antialiased = args.up, args.antialiased
     layers = args.patch_layers

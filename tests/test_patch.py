@@ -51,11 +51,14 @@ def test_quantize_gives_a_codebook_and_indices_per_attribute(cloud, quantized):
 def test_codebook_entries_grow_with_the_groups_and_stay_in_range(a, b, per_entry, floor, cap):
     config = PatchConfig(codebook_size=cap, groups_per_entry=per_entry, min_codebook_entries=floor)
     small, large = sorted((a, b))
-    assert 1 <= codebook_entries(config, small) <= codebook_entries(config, large) <= cap
-    entries = codebook_entries(config, large)
+    assert 1 <= codebook_entries(config, small, 1) <= codebook_entries(config, large, 1) <= cap
+    entries = codebook_entries(config, large, 1)
     assert min(cap, floor) <= entries <= max(floor, large / per_entry)  # one entry per per_entry groups
     assert entries == cap or entries == floor or entries > large / per_entry - 1
-    assert codebook_entries(dataclasses.replace(config, groups_per_entry=None), small) == cap
+    assert codebook_entries(dataclasses.replace(config, groups_per_entry=None), small, 1) == cap
+    assert codebook_entries(config, large, 3) == codebook_entries(config, 3 * large, 1)
+    fixed = dataclasses.replace(config, codebooks_sized_for=large)
+    assert codebook_entries(fixed, small, 1) == entries  # the planned count, not the cloud's
 
 
 def test_few_gaussians_get_small_codebooks_and_still_decode_exactly(cloud):
@@ -63,7 +66,7 @@ def test_few_gaussians_get_small_codebooks_and_still_decode_exactly(cloud):
     config = dataclasses.replace(CONFIG, groups_per_entry=32, min_codebook_entries=4)
     quantized = PatchEncoder(config, seed=3).quantize(few)
     for cb in quantized.codebooks:
-        expected = codebook_entries(config, len(few) * cb.groups)
+        expected = codebook_entries(config, len(few), cb.groups)
         assert len(cb.entries) <= expected < CONFIG.codebook_size
         assert quantized.indices[cb.attribute].max() < len(cb.entries)
     sizes = {cb.attribute.name: len(cb.entries) for cb in quantized.codebooks}

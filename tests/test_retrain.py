@@ -12,6 +12,7 @@ import subprocess
 import sys
 import time
 import warnings
+import zlib
 
 import numpy as np
 import pytest
@@ -24,6 +25,7 @@ from spcodec.encoder.config import (
     EncoderConfig,
     PatchConfig,
     RetrainConfig,
+    codebook_entries,
 )
 from spcodec.encoder.pipeline import encode
 from spcodec.encoder.retrain import RunControl
@@ -33,6 +35,7 @@ from spcodec.imaging.cameras import Camera
 from spcodec.imaging.evaluate import DatasetMismatchWarning, EvalConfig, evaluate_against_reference
 from spcodec.imaging.render import RenderSettings
 from spcodec.imaging.views import sample_views
+from spcodec.sections import parse_codebooks
 from spcodec.synthetic import make_scene
 
 from conftest import real_file, write_transforms_dataset
@@ -283,6 +286,16 @@ def test_codebooks_that_shrink_with_the_patch_land_on_target_and_leave_room_for_
     assert abs(len(result.data) - target) <= 0.05 * target, result.stats["rate"]
     codebooks = result.stats["sections"]["PATCH_CODEBOOKS"]
     assert codebooks < 0.2 * len(result.data), result.stats["sections"]  # was 52 %
+    # the codebooks written are those the fit measured: sized at the planned count, not at the
+    # (smaller) count training ended with
+    planned = dataclasses.replace(config.patch,
+                                  codebooks_sized_for=result.stats["rate"]["predicted_count"])
+    section = next(s for s in spcodec.inspect(result.data).to_json()["sections"]
+                   if s["type"] == "PATCH_CODEBOOKS")
+    raw = zlib.decompress(result.data[section["offset"]:section["offset"] + section["length"]])
+    for cb in parse_codebooks(raw, cloud.sh_degree):
+        if cb.attribute.name.startswith("SH_BAND"):
+            assert len(cb.entries) == codebook_entries(planned, 0, cb.groups), cb.attribute
 
 
 def test_target_size_too_small_is_refused_with_no_output(tmp_path, scene, capsys):

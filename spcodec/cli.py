@@ -354,7 +354,8 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
     size.add_argument("--target-size", metavar="SIZE",
                       help="aim the file at SIZE bytes, within 5%%: 150k, 2MB, 300000 (k, M "
                       "decimal; KiB, MiB binary); sets how many patch Gaussians survive pruning "
-                      "(default: none, the preset's downsample)")
+                      "and, below 8,192 of them, shrinks the codebooks to match (default: none, "
+                      "the preset's downsample)")
     size.add_argument("--target-psnr", type=Bounded(float, 10, 100), metavar="DB",
                       help="the smallest file whose close-up (eval's views at half the distance, "
                       "800x800) reaches DB against the input: %(type)s; sets how many patch "

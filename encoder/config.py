@@ -311,7 +311,7 @@ class PatchConfig:
     #: Fewer entries for few Gaussians: a codebook gets at most one entry per this many of the
     #: groups it codes (and at least ``min_codebook_entries``); None: always ``codebook_size``.
     #: At a small target the fixed 256 entries cost more than the Gaussians they serve: kacytran
-    #: (SH 3) at a quarter of SPZ's bytes kept 1,255 patch Gaussians beside 25 kB of codebooks,
+    #: (SH 3) at a quarter of SPZ's bytes kept 1,173 patch Gaussians beside 25 kB of codebooks,
     #: 52 % of the file. See :func:`codebook_entries`.
     groups_per_entry: float | None = None
     #: The floor of the rule above.

@@ -482,7 +482,9 @@ class EncoderConfig:
     #: Prune and retrain the patch (None: the no-retrain encoder). See :mod:`.retrain`.
     retrain: "RetrainConfig | None" = None
     #: Rate control: aim the file at this many bytes (within 5 %) by choosing how many patch
-    #: Gaussians survive pruning (None: the size follows from the settings).
+    #: Gaussians survive pruning (None: the size follows from the settings). ``--target-size``
+    #: also sets ``patch.groups_per_entry`` to :data:`TARGET_GROUPS_PER_ENTRY`; a library caller
+    #: who wants the same file sets both.
     target_size: int | None = None
     #: Quality control: the smallest file whose close-up PSNR (``spcodec eval``'s views at half
     #: their distance) reaches this many dB, again by choosing how many patch Gaussians survive

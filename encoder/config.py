@@ -309,6 +309,19 @@ def geometric_fractions(layers: int, ratio: float = LAYER_RATIO) -> tuple[float,
     return tuple(share / sum(shares) for share in shares)
 
 
+DEFAULT_POSITION_BITS = 16
+"""Patch positions without retraining: 16 bits of each layer's box (1/65,535 of its extent)."""
+
+RETRAINED_POSITION_BITS = 12
+"""Patch positions of a retrained (pruned to a budget) file: 12 bits of the scene's robust extent,
+more where outliers stretch the box (``encoder.patch.retrained_position_bits``). Every shared
+scene's box spans about 1,000 pixels of a viewer's close-up (PlayCanvas at half the orbit distance,
+512 px), so 12 bits place a Gaussian within a quarter of a pixel there, and training learns the
+grid. At 16 bits positions were a third of a file at a quarter of SPZ's size (32-37 bits per
+Gaussian); at 12 bits 20-25, and the bytes saved keep 14-18 % more Gaussians: +0.3 dB (fourth_st)
+to +1.3 dB (donut) in PlayCanvas at both framings (docs/RESULTS.md 13.10)."""
+
+
 @dataclass
 class PatchConfig:
     """Parameters of the patch encoder; defaults follow the paper unless a comment says why not."""
@@ -344,7 +357,9 @@ class PatchConfig:
     #: fixed point, delta-coded), "float16" (the paper's) or "float32" (lossless).
     position_mode: str = "draco"
     #: For draco and quant16: bits of precision over the layer's bounding box (quant16: <= 16).
-    position_bits: int = 16
+    #: None: :data:`DEFAULT_POSITION_BITS`, except for a retrained patch, where the encoder takes
+    #: :data:`RETRAINED_POSITION_BITS` over the scene's robust extent (see that constant).
+    position_bits: int | None = None
     #: Number of patch layers (>= 1).
     layers: int = 3
     #: Share of the patch Gaussians in each layer, most important first (renormalized). The first
@@ -374,6 +389,11 @@ class PatchConfig:
     #: Views (training split, never eval's) and their (width, height) for "blend".
     importance_views: int = 6
     importance_resolution: tuple[int, int] = (256, 192)
+
+    @property
+    def stored_position_bits(self) -> int:
+        """The position precision written: ``position_bits``, or its default when unset."""
+        return DEFAULT_POSITION_BITS if self.position_bits is None else self.position_bits
 
 
 @dataclass

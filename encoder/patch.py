@@ -22,7 +22,7 @@ from spcodec.decoder.layers import fill_patch_attributes
 from spcodec.sections import Codebook, PatchPositions
 from spcodec.writer import PatchLayer
 
-from .config import PatchConfig, codebook_entries
+from .config import DEFAULT_POSITION_BITS, RETRAINED_POSITION_BITS, PatchConfig, codebook_entries
 from .draco import encode_ordered, grid_for
 from .kmeans import exhaustive_codebook, nearest, sampled_codebook
 from .morton import morton_codes
@@ -91,7 +91,29 @@ def input_grid(xyz: np.ndarray, bits: int) -> np.ndarray | None:
     return steps
 
 
-def encode_positions(xyz: np.ndarray, mode: str, bits: int = 16) -> PatchPositions:
+ROBUST_PERCENTILE = 1.0
+""":func:`retrained_position_bits` measures the scene between these percentiles of each axis."""
+
+
+def retrained_position_bits(xyz: np.ndarray) -> int:
+    """Bits of a retrained patch's positions: :data:`RETRAINED_POSITION_BITS` over the robust
+    extent of ``xyz`` (the scene's positions), one more per doubling of the box beyond it, at most
+    :data:`DEFAULT_POSITION_BITS`. Draco's grid spans a layer's whole box, so a few far outliers
+    would otherwise coarsen the grid of everything else."""
+    xyz = np.asarray(xyz, np.float64)
+    if len(xyz) == 0:
+        return RETRAINED_POSITION_BITS
+    box = float(np.ptp(xyz, axis=0).max())
+    lo, hi = np.percentile(xyz, [ROBUST_PERCENTILE, 100 - ROBUST_PERCENTILE], axis=0)
+    robust = float((hi - lo).max())
+    if not box > 0 or not robust > 0:
+        return RETRAINED_POSITION_BITS
+    extra = max(0, int(round(np.log2(box / robust))))
+    return min(DEFAULT_POSITION_BITS, RETRAINED_POSITION_BITS + extra)
+
+
+def encode_positions(xyz: np.ndarray, mode: str, bits: int = DEFAULT_POSITION_BITS
+                     ) -> PatchPositions:
     """Positions of one layer in the configured mode (draco falls back to quant16 if Draco does not
     keep the order, which the encoder checks by decoding). In draco and quant16 modes, positions
     already on a coarser grid than ``bits`` asks for are stored exactly on it
@@ -374,7 +396,7 @@ class PatchEncoder:
                 members = members[np.argsort(morton_codes(cloud.means[members].astype(np.float64)),
                                              kind="stable")]
             positions = encode_positions(cloud.means[members], cfg.position_mode,
-                                         cfg.position_bits)
+                                         cfg.stored_position_bits)
             layers.append(PatchLayer(positions, quantized.subset(members).indices))
             orders.append(members)
         return PatchEncoding(quantized.codebooks, layers, orders)

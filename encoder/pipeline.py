@@ -25,8 +25,8 @@ from spcodec.imaging.evaluate import EvalConfig, evaluate_against_dataset, evalu
 from spcodec.writer import EncodedScene, WriteOptions
 
 from .categorize import categorize
-from .config import EncoderConfig, PatchConfig
-from .patch import PatchEncoder, PatchEncoding
+from .config import DEFAULT_POSITION_BITS, EncoderConfig, PatchConfig
+from .patch import PatchEncoder, PatchEncoding, retrained_position_bits
 from .prune_retrain import encode_pruned_patch, factor_trial, prepare_targets, scene_weights
 from .refine import RefineResult, refine
 from .retrain import RunControl
@@ -54,6 +54,17 @@ def validate_input(cloud: GaussianCloud) -> None:
         raise FormatError("SH degree above 3", "ply-invalid")
 
 
+def with_position_bits(config: EncoderConfig, cloud: GaussianCloud) -> EncoderConfig:
+    """``config`` with the patch position precision settled: as given, or by default 16 bits of
+    a layer's box, and for a retrained patch the coarser grid its budget buys more Gaussians with
+    (:func:`.patch.retrained_position_bits`). Settled once, so training, rate control, the writer
+    and the file's metadata all see the same number."""
+    if config.patch.position_bits is not None:
+        return config
+    bits = DEFAULT_POSITION_BITS if config.retrain is None else retrained_position_bits(cloud.means)
+    return dataclasses.replace(config, patch=dataclasses.replace(config.patch, position_bits=bits))
+
+
 def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
            progress: ProgressFactory = silent, source_name: str | None = None,
            dataset: str | Path | None = None, control: RunControl | None = None) -> EncodeResult:
@@ -67,6 +78,7 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
     """
     config = (config or EncoderConfig()).seeded()
     validate_input(cloud)
+    config = with_position_bits(config, cloud)
     if dataset is not None and config.retrain is None:
         raise UsageError("a dataset is only used for retraining: drop it or enable retraining")
     try:

@@ -189,7 +189,7 @@ class RetrainStage:
         model = CodebookGaussians(
             trained.means, quantized.codebooks, quantized.indices, trained.sh_degree, self.device,
             position_rate=cfg.rates.position_final * self.targets.extent,
-            position_bits=encoder.config.position_bits)
+            position_bits=encoder.config.stored_position_bits)
         loop = self._loop(model, cfg.finish_iterations)
         stats["psnr_quantized"] = loop.mean_psnr()
         if cfg.finish_iterations == 0:
@@ -233,7 +233,7 @@ class RetrainStage:
             return FreeGaussians(survivors, self.device, cfg.rates, self.targets.extent)
         return SnappedGaussians(survivors, self.device, cfg.rates, self.targets.extent,
                                 cfg.snap_step, cfg.snap_refresh_every, self._snap_codebooks,
-                                self.patch_encoder.config.position_bits)
+                                self.patch_encoder.config.stored_position_bits)
 
     def _snap_codebooks(self, cloud: GaussianCloud
                         ) -> tuple[np.ndarray | None, list[Codebook], np.ndarray]:

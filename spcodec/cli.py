@@ -343,7 +343,8 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
                    f"{NESTED_PATCH_LAYERS} with --nested)")
     p.add_argument("--position-bits", type=Bounded(int, 8, 30), default=None, metavar="B",
                    help="bits of precision of the patch positions over each layer's box: "
-                   "%(type)s (default: set by --preset: 14 for transparent, 16 otherwise)")
+                   "%(type)s (default: 12 of the scene's extent when retraining, 16 without, "
+                   "14 for --preset transparent)")
     p.add_argument("--tau-max", type=Bounded(float, 0, exclusive=True), default=None,
                    metavar="TAU", help="polynomial-model error threshold of sketch clusters "
                    "(unitless): %(type)s (default: set by --preset)")

@@ -236,3 +236,29 @@ def test_positions_off_any_grid_or_on_a_finer_one_keep_the_configured_coding():
     assert input_grid(fine, 16) is not None
     wide = (rng.integers(0, 70_000, (500, 3)) * 2.0 ** -12).astype(np.float32)
     assert input_grid(wide, 18) is None  # more levels than QUANT16 holds
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.floats(1.0, 1e4), st.integers(0, 3))
+def test_retrained_position_bits_keep_the_robust_grid_fine_whatever_the_outliers(seed, reach,
+                                                                                outliers):
+    """12 bits over a scene without outliers; outliers ``reach`` times as far as the scene's
+    extent add bits, so the step stays near 1/4096 of the robust extent (until 16 bits)."""
+    from spcodec.encoder.config import DEFAULT_POSITION_BITS, RETRAINED_POSITION_BITS
+    from spcodec.encoder.patch import retrained_position_bits
+
+    rng = np.random.default_rng(seed)
+    scene = rng.uniform(-1, 1, (1000, 3)) * rng.uniform(0.1, 10, 3)
+    far = rng.normal(size=(outliers, 3))
+    far *= reach * np.ptp(scene, axis=0).max() / np.linalg.norm(far, axis=1, keepdims=True)
+    xyz = np.concatenate([scene, far]).astype(np.float32)
+    bits = retrained_position_bits(xyz)
+    assert RETRAINED_POSITION_BITS <= bits <= DEFAULT_POSITION_BITS
+    if outliers == 0:
+        assert bits == RETRAINED_POSITION_BITS
+    box = float(np.ptp(xyz.astype(np.float64), axis=0).max())
+    robust = float(np.ptp(scene, axis=0).max())
+    if bits < DEFAULT_POSITION_BITS:
+        assert box / (2 ** bits - 1) <= 1.5 * robust / (2 ** RETRAINED_POSITION_BITS - 1)
+    farther = np.concatenate([scene, 2 * far]).astype(np.float32)
+    assert retrained_position_bits(farther) >= bits

@@ -21,6 +21,8 @@ import torch
 import spcodec
 from spcodec.cli import main
 from spcodec.encoder.config import (
+    DEFAULT_POSITION_BITS,
+    RETRAINED_POSITION_BITS,
     TARGET_GROUPS_PER_ENTRY,
     EncoderConfig,
     PatchConfig,
@@ -74,6 +76,36 @@ def test_retraining_beats_the_no_retrain_encode_at_equal_size(scene):
     assert ours > theirs + 1.0, (ours, theirs)
     stats = retrained.stats["retrain"]
     assert stats["psnr_retrained"] > stats["psnr_before"] + 1.0
+
+
+def test_a_retrained_patch_stores_positions_on_the_coarser_retrained_grid(scene):
+    """Retraining settles 12 bits over the (outlier-free) scene, records them in the metadata and
+    writes every patch layer on that grid; a precision the caller gives is kept."""
+    def layer_grid_offsets(result, bits: int) -> float:
+        """The largest distance, in grid steps, of a decoded patch position from the grid of
+        ``bits`` over its layer's box (Draco: one range, the widest axis; per-axis minimum)."""
+        worst = 0.0
+        decoder = spcodec.StreamDecoder()
+        for layer in decoder.feed(result.data)[1:]:
+            xyz = layer.cloud.means.astype(np.float64)
+            lo = xyz.min(axis=0)
+            step = float((xyz.max(axis=0) - lo).max()) / (2 ** bits - 1)
+            cells = (xyz - lo) / step
+            worst = max(worst, float(np.abs(cells - np.round(cells)).max()))
+        return worst
+
+    retrained = encode(scene, retrain_config(iterations=20, finish_iterations=4))
+    settings = spcodec.inspect(retrained.data).to_json()["metadata"]["settings"]
+    assert settings["patch"]["position_bits"] == RETRAINED_POSITION_BITS
+    assert layer_grid_offsets(retrained, RETRAINED_POSITION_BITS) < 0.01
+    given = dataclasses.replace(retrain_config(iterations=20, finish_iterations=4),
+                                patch=PatchConfig(position_bits=16))
+    precise = encode(scene, given)
+    assert layer_grid_offsets(precise, RETRAINED_POSITION_BITS) > 0.1
+    assert len(precise.data) > len(retrained.data)
+    plain = encode(scene, EncoderConfig(seed=3, max_sketch_share=None))
+    assert spcodec.inspect(plain.data).to_json()["metadata"]["settings"]["patch"][
+        "position_bits"] == DEFAULT_POSITION_BITS
 
 
 def test_snapping_trains_what_the_file_stores_and_only_when_quantizing_costs(scene):

@@ -317,9 +317,9 @@ RETRAINED_POSITION_BITS = 12
 more where outliers stretch the box (``encoder.patch.retrained_position_bits``). Every shared
 scene's box spans about 1,000 pixels of a viewer's close-up (PlayCanvas at half the orbit distance,
 512 px), so 12 bits place a Gaussian within a quarter of a pixel there, and training learns the
-grid. At 16 bits positions were a third of a file at a quarter of SPZ's size (32-37 bits per
-Gaussian); at 12 bits 20-25, and the bytes saved keep 14-18 % more Gaussians: +0.3 dB (fourth_st)
-to +1.3 dB (donut) in PlayCanvas at both framings (docs/RESULTS.md 13.10)."""
+grid. At 16 bits positions were 30-40 % of a patch at a quarter of SPZ's size (32-40 bits per
+Gaussian); at 12 bits 19-27, and the bytes saved keep 10-18 % more Gaussians: up to +1.3 dB
+(donut) in PlayCanvas, on no shared scene a loss at either framing (docs/RESULTS.md 13.10)."""
 
 
 @dataclass

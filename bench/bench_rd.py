@@ -59,7 +59,8 @@ LABELS = {"sp": "S&P++ (retrained)", "pr": "Prune&Retrain", "noretrain": "no-ret
           # rows added by hand from single encodes (docs/RESULTS.md says which)
           "sp-highrate": "S&P++, highrate codebooks", "sp-target": "S&P++ --target-size",
           "sp-target-uncapped": "S&P++ --target-size, sketch not capped (before 13.6)",
-          "spz4-uncapped": "S&P++ at SPZ/4, sketch not capped (before 13.6)"}
+          "spz4-uncapped": "S&P++ at SPZ/4, sketch not capped (before 13.6)",
+          "spz4-p12": "S&P++ at SPZ/4, 12-bit positions, 1000 steps (13.10)"}
 
 
 def scene_setup(name: str, args) -> dict:
@@ -236,7 +237,7 @@ def plot(args) -> None:
     styles = {"sp": ("o-", "C0"), "pr": ("s--", "C1"), "noretrain": ("^:", "C2"),
               "spz": ("*", "C3"), "sog": ("X", "C5"), "spz4": ("P", "C4"), "original": ("D", "k"),
               "sp-target": ("o-", "C6"), "sp-target-uncapped": ("x:", "C7"),
-              "spz4-uncapped": ("x", "C4")}
+              "spz4-uncapped": ("x", "C4"), "spz4-p12": ("P", "C8")}
     for name in dict.fromkeys(r["scene"] for r in rows):
         panels = [(key, title) for key, title in PANELS
                   if any(key in r for r in rows if r["scene"] == name)]
@@ -249,7 +250,8 @@ def plot(args) -> None:
                 if pts:
                     ax.plot([p[0] / 1e6 for p in pts], [p[1] for p in pts], style,
                             color=colour, label=LABELS[method],
-                            markersize=9 if method in ("spz", "sog", "spz4", "spz4-uncapped") else 5)
+                            markersize=9 if method in ("spz", "sog", "spz4", "spz4-uncapped",
+                                                             "spz4-p12") else 5)
             ax.set_xscale("log")
             ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
             ax.xaxis.set_minor_formatter(FuncFormatter(_minor_label))

@@ -61,6 +61,8 @@ LABELS = {"sp": "S&P++ (retrained)", "pr": "Prune&Retrain", "noretrain": "no-ret
           "sp-target-uncapped": "S&P++ --target-size, sketch not capped (before 13.6)",
           "spz4-uncapped": "S&P++ at SPZ/4, sketch not capped (before 13.6)",
           "spz4-p12": "S&P++ at SPZ/4, 12-bit positions, 1000 steps (13.10)"}
+SINGLE_POINTS = ("spz", "sog", "spz4", "spz4-uncapped", "spz4-p12")
+"""Methods with one point per scene, drawn larger than the curves."""
 
 
 def scene_setup(name: str, args) -> dict:
@@ -250,8 +252,7 @@ def plot(args) -> None:
                 if pts:
                     ax.plot([p[0] / 1e6 for p in pts], [p[1] for p in pts], style,
                             color=colour, label=LABELS[method],
-                            markersize=9 if method in ("spz", "sog", "spz4", "spz4-uncapped",
-                                                             "spz4-p12") else 5)
+                            markersize=9 if method in SINGLE_POINTS else 5)
             ax.set_xscale("log")
             ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
             ax.xaxis.set_minor_formatter(FuncFormatter(_minor_label))

@@ -19,6 +19,7 @@ from spcodec.attributes import PatchAttribute, canonical_rotation, encode_opacit
 from spcodec.cloud import GaussianCloud
 from spcodec.container import MAX_CODEBOOK_ENTRIES
 from spcodec.decoder.layers import fill_patch_attributes
+from spcodec.imaging.views import robust_bounds
 from spcodec.sections import Codebook, PatchPositions
 from spcodec.writer import PatchLayer
 
@@ -91,24 +92,17 @@ def input_grid(xyz: np.ndarray, bits: int) -> np.ndarray | None:
     return steps
 
 
-ROBUST_PERCENTILE = 1.0
-""":func:`retrained_position_bits` measures the scene between these percentiles of each axis."""
-
-
-def retrained_position_bits(xyz: np.ndarray) -> int:
-    """Bits of a retrained patch's positions: :data:`RETRAINED_POSITION_BITS` over the robust
-    extent of ``xyz`` (the scene's positions), one more per doubling of the box beyond it, at most
-    :data:`DEFAULT_POSITION_BITS`. Draco's grid spans a layer's whole box, so a few far outliers
-    would otherwise coarsen the grid of everything else."""
-    xyz = np.asarray(xyz, np.float64)
-    if len(xyz) == 0:
+def retrained_position_bits(cloud: GaussianCloud) -> int:
+    """Bits of a retrained patch's positions: :data:`RETRAINED_POSITION_BITS` over the scene's
+    robust extent (the box sampled views and close-ups frame, :func:`robust_bounds`), one more per
+    doubling of the whole box beyond it, at most :data:`DEFAULT_POSITION_BITS`. Draco's grid spans
+    a layer's whole box, so a few far outliers would otherwise coarsen the grid of everything
+    else."""
+    box = float(np.ptp(cloud.means.astype(np.float64), axis=0).max()) if len(cloud) else 0.0
+    if not box > 0:
         return RETRAINED_POSITION_BITS
-    box = float(np.ptp(xyz, axis=0).max())
-    lo, hi = np.percentile(xyz, [ROBUST_PERCENTILE, 100 - ROBUST_PERCENTILE], axis=0)
-    robust = float((hi - lo).max())
-    if not box > 0 or not robust > 0:
-        return RETRAINED_POSITION_BITS
-    extra = max(0, int(round(np.log2(box / robust))))
+    bounds = robust_bounds(cloud)
+    extra = max(0, int(round(np.log2(box / float((bounds.hi - bounds.lo).max())))))
     return min(DEFAULT_POSITION_BITS, RETRAINED_POSITION_BITS + extra)
 
 

@@ -61,7 +61,7 @@ def with_position_bits(config: EncoderConfig, cloud: GaussianCloud) -> EncoderCo
     and the file's metadata all see the same number."""
     if config.patch.position_bits is not None:
         return config
-    bits = DEFAULT_POSITION_BITS if config.retrain is None else retrained_position_bits(cloud.means)
+    bits = DEFAULT_POSITION_BITS if config.retrain is None else retrained_position_bits(cloud)
     return dataclasses.replace(config, patch=dataclasses.replace(config.patch, position_bits=bits))
 
 

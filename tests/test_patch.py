@@ -243,22 +243,31 @@ def test_positions_off_any_grid_or_on_a_finer_one_keep_the_configured_coding():
 def test_retrained_position_bits_keep_the_robust_grid_fine_whatever_the_outliers(seed, reach,
                                                                                 outliers):
     """12 bits over a scene without outliers; outliers ``reach`` times as far as the scene's
-    extent add bits, so the step stays near 1/4096 of the robust extent (until 16 bits)."""
+    extent add bits, so the step stays near 1/4096 of the robust extent (the box views frame),
+    until 16 bits."""
     from spcodec.encoder.config import DEFAULT_POSITION_BITS, RETRAINED_POSITION_BITS
     from spcodec.encoder.patch import retrained_position_bits
+    from spcodec.imaging.views import robust_bounds
 
     rng = np.random.default_rng(seed)
     scene = rng.uniform(-1, 1, (1000, 3)) * rng.uniform(0.1, 10, 3)
     far = rng.normal(size=(outliers, 3))
     far *= reach * np.ptp(scene, axis=0).max() / np.linalg.norm(far, axis=1, keepdims=True)
-    xyz = np.concatenate([scene, far]).astype(np.float32)
-    bits = retrained_position_bits(xyz)
+
+    def cloud(xyz: np.ndarray) -> GaussianCloud:
+        n = len(xyz)
+        return GaussianCloud(means=xyz, scales=np.full((n, 3), -4.0),
+                             quats=np.tile([1, 0, 0, 0], (n, 1)), opacities=np.full(n, 2.0),
+                             sh_dc=np.zeros((n, 3)), sh_rest=np.zeros((n, 0, 3)))
+
+    points = cloud(np.concatenate([scene, far]))
+    bits = retrained_position_bits(points)
     assert RETRAINED_POSITION_BITS <= bits <= DEFAULT_POSITION_BITS
     if outliers == 0:
         assert bits == RETRAINED_POSITION_BITS
-    box = float(np.ptp(xyz.astype(np.float64), axis=0).max())
-    robust = float(np.ptp(scene, axis=0).max())
+    box = float(np.ptp(points.means.astype(np.float64), axis=0).max())
+    bounds = robust_bounds(points)
+    robust = float((bounds.hi - bounds.lo).max())
     if bits < DEFAULT_POSITION_BITS:
         assert box / (2 ** bits - 1) <= 1.5 * robust / (2 ** RETRAINED_POSITION_BITS - 1)
-    farther = np.concatenate([scene, 2 * far]).astype(np.float32)
-    assert retrained_position_bits(farther) >= bits
+    assert retrained_position_bits(cloud(np.concatenate([scene, 2 * far]))) >= bits

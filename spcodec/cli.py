@@ -83,7 +83,7 @@ PATCH_LAYERS_DEFAULT, NESTED_PATCH_LAYERS = 3, 6
 """``PatchConfig.layers`` and ``encoder.config.NESTED_PATCH_LAYERS``, for --help without importing
 the encoder; a test keeps them equal."""
 RETRAIN_DEFAULTS = {"iterations": 3000, "finish_iterations": 600, "views": 48, "resolution": 400,
-                    "close_views": 48}
+                    "close_views": 48, "nested_full_share": 0.75}
 """``RetrainConfig`` defaults shown by --help (the same test keeps them equal)."""
 VIEWER_BLUR_VARIANCE = 0.075
 """``encoder.config.VIEWER_BLUR_VARIANCE``, the default of --blur-variance (the same test)."""
@@ -391,9 +391,14 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
                        f"{RETRAIN_DEFAULTS['finish_iterations']})")
     train.add_argument("--nested", action="store_true", default=None,
                        help="progressive by construction: fix the patch layers before training "
-                       "and train every layer prefix (half the steps the whole file, the rest "
-                       "shorter prefixes), so each prefix a streaming viewer shows is a trained "
-                       "scene; same steps (default: off)")
+                       "and train every layer prefix (--nested-full-share of the steps the "
+                       "whole file, the rest shorter prefixes), so each prefix a streaming viewer "
+                       "shows is a trained scene; same steps (default: off)")
+    train.add_argument("--nested-full-share", type=Bounded(float, 0, 1), default=None,
+                       metavar="F", help="with --nested: the share of the steps that train the "
+                       "whole file; lower: better early prefixes, a weaker full file "
+                       "(docs/RESULTS.md 15.2): %(type)s (default: "
+                       f"{RETRAIN_DEFAULTS['nested_full_share']})")
     train.add_argument("--views", type=Bounded(int, 1, 10000), default=None, metavar="N",
                        help="distillation: training views sampled around the input: %(type)s "
                        f"(default: {RETRAIN_DEFAULTS['views']})")
@@ -479,7 +484,7 @@ def encode_config(args: argparse.Namespace):
         given = [f"--{n.replace('_', '-')}" for n in ("dataset", "iterations", "finish_iterations",
                                                       "views", "close_views", "resolution",
                                                       "resume", "checkpoint_every", "downscale",
-                                                      "nested")
+                                                      "nested", "nested_full_share")
                  if getattr(args, n) not in (None, False)]
         if given:
             raise UsageError(f"{', '.join(given)} only apply to retraining: drop {without} or "
@@ -501,6 +506,9 @@ def encode_config(args: argparse.Namespace):
     config.up, config.antialiased = args.up, args.antialiased
     if args.blur_variance is not None:
         config.blur_variance = args.blur_variance
+    if args.nested_full_share is not None and not args.nested:
+        raise UsageError("--nested-full-share sets how --nested trains: give --nested too, or "
+                         "drop it")
     layers = args.patch_layers
     if layers is None and retrain and args.nested:
         layers = NESTED_PATCH_LAYERS
@@ -514,7 +522,7 @@ def encode_config(args: argparse.Namespace):
     if retrain:
         changes = {}
         for name in ("patch_downsample", "prune", "iterations", "finish_iterations", "views",
-                     "close_views", "resolution", "downscale", "nested"):
+                     "close_views", "resolution", "downscale", "nested", "nested_full_share"):
             if getattr(args, name) is not None:
                 changes[name] = getattr(args, name)
         config.retrain = dataclasses.replace(config.retrain, **changes)

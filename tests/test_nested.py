@@ -160,6 +160,22 @@ def test_nested_needs_retraining(tmp_path, scene, capsys):
     assert not out.exists()
 
 
+def test_the_full_share_reaches_the_training_and_needs_nested(tmp_path, scene, capsys):
+    args = build_parser().parse_args(["encode", "in.ply", "-o", "out.spc", "--nested",
+                                      "--nested-full-share", "0.6"])
+    assert encode_config(args).retrain.nested_full_share == 0.6
+    ply = tmp_path / "in.ply"
+    spcodec.write_ply(ply, scene)
+    out = tmp_path / "out.spc"
+    assert main(["encode", str(ply), "-o", str(out), "--nested-full-share", "0.6"]) == 2
+    assert "--nested-full-share sets how --nested trains" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["encode", "in.ply", "-o", "out.spc", "--nested",
+                                   "--nested-full-share", "1.5"])
+    assert "in 0..1" in capsys.readouterr().err
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("extra, layers", [
     ([], PatchConfig().layers),
     (["--nested"], NESTED_PATCH_LAYERS),

@@ -156,7 +156,7 @@ def plot(rows: list[dict], path: Path, rd: Path | None) -> None:
             for row in (r for r in rows if r["scene"] == scene):
                 ax.plot([p["bytes"] / 1e3 for p in row["prefixes"]],
                         [p[framing] for p in row["prefixes"]],
-                        "s-" if row["label"] == "nested" else "o--",
+                        "s-" if row["label"].startswith("nested") else "o--",
                         label=f"{row['label']} prefixes")
             points = [r for r in rd_rows if r["scene"] == scene and r.get(framing) is not None
                       and r["method"] in ("sp", "spz4", "sp-target")]

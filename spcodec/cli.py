@@ -82,8 +82,8 @@ THROTTLE = Bounded(float, 0, exclusive=True)
 PATCH_LAYERS_DEFAULT, NESTED_PATCH_LAYERS = 3, 6
 """``PatchConfig.layers`` and ``encoder.config.NESTED_PATCH_LAYERS``, for --help without importing
 the encoder; a test keeps them equal."""
-RETRAIN_DEFAULTS = {"iterations": 3000, "finish_iterations": 600, "views": 48, "resolution": 400,
-                    "close_views": 48, "nested_full_share": 0.75}
+RETRAIN_DEFAULTS = {"iterations": 3000, "finish_iterations": 600, "views": 96, "resolution": 400,
+                    "close_views": 96, "nested_full_share": 0.75}
 """``RetrainConfig`` defaults shown by --help (the same test keeps them equal)."""
 VIEWER_BLUR_VARIANCE = 0.075
 """``encoder.config.VIEWER_BLUR_VARIANCE``, the default of --blur-variance (the same test)."""

@@ -37,12 +37,26 @@ def crc32(data: bytes | memoryview) -> int:
 
 
 # ------------------------------------------------------------------------------ section codecs
-def compress(codec: Codec, raw: bytes, level: int | None = None) -> bytes:
-    """Compress one section payload. Deterministic for given input, codec and level."""
+def compress(codec: Codec, raw: bytes, level: int | None = None,
+             column_bytes: int | None = None) -> bytes:
+    """Compress one section payload. Deterministic for given input, codec, level and columns.
+
+    ``column_bytes`` says the payload is made of columns of that many bytes (the index columns of
+    [R-52]). zlib then also tries a deflate block per column, so each column gets a Huffman code
+    of its own (a column of opacity indices and one of rotation indices have little in common),
+    and keeps whichever stream is smallest. Any of them is one ordinary zlib stream: decoders see
+    no difference.
+    """
     if codec == Codec.NONE:
         return bytes(raw)
     if codec == Codec.ZLIB:
-        return zlib.compress(raw, 9 if level is None else level)
+        level = 9 if level is None else level
+        plain = zlib.compress(raw, level)
+        if not column_bytes or column_bytes >= len(raw):
+            return plain
+        by_column = (_deflate_by_column(raw, column_bytes, level, strategy)
+                     for strategy in (zlib.Z_DEFAULT_STRATEGY, zlib.Z_HUFFMAN_ONLY))
+        return min((plain, *by_column), key=len)
     if codec == Codec.ZSTD:
         if _zstd is None:
             raise FormatError("zstd requested but the 'zstandard' package is not installed "
@@ -51,6 +65,20 @@ def compress(codec: Codec, raw: bytes, level: int | None = None) -> bytes:
                                       write_checksum=False, threads=0)
         return params.compress(raw)
     raise FormatError(f"unknown codec id {int(codec)}", "unknown-codec")
+
+
+def _deflate_by_column(raw: bytes, column_bytes: int, level: int, strategy: int) -> bytes:
+    """One zlib stream that ends a deflate block at every column boundary (``Z_BLOCK`` adds no
+    bytes of its own). Large columns still split into several blocks where zlib's buffer fills.
+    ``Z_HUFFMAN_ONLY`` wins on columns of near-random indices, where string matches only blur
+    the symbol counts; the default strategy where indices repeat."""
+    deflater = zlib.compressobj(level, zlib.DEFLATED, 15, 9, strategy)
+    parts = []
+    for start in range(0, len(raw), column_bytes):
+        parts.append(deflater.compress(raw[start:start + column_bytes]))
+        parts.append(deflater.flush(zlib.Z_BLOCK))
+    parts.append(deflater.flush(zlib.Z_FINISH))
+    return b"".join(parts)
 
 
 def decompress(codec: int, stored: bytes | memoryview, raw_length: int) -> bytes:

@@ -94,6 +94,9 @@ class SectionSpec:
     raw_length: int | None = None
     crc: int | None = None
     reserved: int = 0
+    column_bytes: int | None = None
+    """Length of the equal columns ``raw`` is made of, when it is (PATCH_ATTRIBUTES): lets zlib
+    give each column its own deflate block (:func:`spcodec.codecs.compress`)."""
 
 
 @dataclass
@@ -120,7 +123,7 @@ def assemble(sections: list[SectionSpec], layers: list[LayerSpec], sh_degree: in
     for i, sec in enumerate(sections):
         codec, stored = sec.codec, sec.stored
         if stored is None:
-            stored = compress(Codec(codec), sec.raw, level)
+            stored = compress(Codec(codec), sec.raw, level, sec.column_bytes)
             if store_when_larger and codec != Codec.NONE and len(stored) >= len(sec.raw):
                 codec, stored = Codec.NONE, bytes(sec.raw)
         toc[i] = (sec.type, codec,
@@ -169,7 +172,8 @@ def scene_sections(scene: EncodedScene, codec: Codec = Codec.ZLIB) -> tuple[list
         sections.append(SectionSpec(SectionType.PATCH_POSITIONS, k,
                                     pack_positions(patch.positions), codec))
         sections.append(SectionSpec(SectionType.PATCH_ATTRIBUTES, k,
-                                    pack_indices(patch.indices, scene.codebooks), codec))
+                                    pack_indices(patch.indices, scene.codebooks), codec,
+                                    column_bytes=len(patch)))
         layers.append(LayerSpec(LayerKind.PATCH, len(patch)))
     return sections, layers
 

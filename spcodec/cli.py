@@ -79,8 +79,8 @@ MAX_LAYER = Bounded(int, 0)
 PORT = Bounded(int, 0, 65535)
 THROTTLE = Bounded(float, 0, exclusive=True)
 """``serve --throttle`` in kbit/s: any positive speed."""
-PATCH_LAYERS_DEFAULT, NESTED_PATCH_LAYERS = 3, 6
-"""``PatchConfig.layers`` and ``encoder.config.NESTED_PATCH_LAYERS``, for --help without importing
+PATCH_LAYERS_DEFAULT, RETRAINED_PATCH_LAYERS = 3, 6
+"""``PatchConfig.layers`` and ``encoder.config.RETRAINED_PATCH_LAYERS``, for --help without importing
 the encoder; a test keeps them equal."""
 RETRAIN_DEFAULTS = {"iterations": 3000, "finish_iterations": 600, "views": 96, "resolution": 400,
                     "close_views": 96, "nested_full_share": 0.75}
@@ -337,10 +337,10 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
                    help="encode every Gaussian as patch (default: off)")
     p.add_argument("--patch-layers", type=Bounded(int, 1, DEFAULT_LIMITS.max_layers - 1),
                    default=None, metavar="N",
-                   help="number of patch layers: %(type)s; other than the default, each holds "
-                   "1.5 times the Gaussians of the one before (default: "
-                   f"{PATCH_LAYERS_DEFAULT}: 7, 16.5 and 76.5 %% of the patch; "
-                   f"{NESTED_PATCH_LAYERS} with --nested)")
+                   help="number of patch layers: %(type)s; each holds 1.5 times the Gaussians of "
+                   f"the one before, except that {PATCH_LAYERS_DEFAULT} hold 7, 16.5 and 76.5 %% "
+                   f"of the patch (default: {RETRAINED_PATCH_LAYERS} when retraining, "
+                   f"{PATCH_LAYERS_DEFAULT} with --no-retrain)")
     p.add_argument("--position-bits", type=Bounded(int, 8, 30), default=None, metavar="B",
                    help="bits of precision of the patch positions over each layer's box: "
                    "%(type)s (default: 12 of the scene's extent when retraining, 16 without, "
@@ -470,7 +470,7 @@ def encode_config(args: argparse.Namespace):
     import dataclasses
 
     from .encoder.config import (
-        NESTED_PATCH_LAYERS,
+        RETRAINED_PATCH_LAYERS,
         TARGET_GROUPS_PER_ENTRY,
         EncoderConfig,
         geometric_fractions,
@@ -510,8 +510,8 @@ def encode_config(args: argparse.Namespace):
         raise UsageError("--nested-full-share sets how --nested trains: give --nested too, or "
                          "drop it")
     layers = args.patch_layers
-    if layers is None and retrain and args.nested:
-        layers = NESTED_PATCH_LAYERS
+    if layers is None and retrain:
+        layers = RETRAINED_PATCH_LAYERS
     if layers is not None and layers != config.patch.layers:
         config.patch = dataclasses.replace(config.patch, layers=layers,
                                            layer_fractions=geometric_fractions(layers))

@@ -281,9 +281,9 @@ def test_help_gives_every_option_its_default_and_range():
 def test_help_defaults_match_the_encoder():
     from spcodec.cli import (
         CHECKPOINT_EVERY,
-        NESTED_PATCH_LAYERS,
         PATCH_LAYERS_DEFAULT,
         RETRAIN_DEFAULTS,
+        RETRAINED_PATCH_LAYERS,
         VIEWER_BLUR_VARIANCE,
     )
     from spcodec.encoder import config
@@ -291,7 +291,7 @@ def test_help_defaults_match_the_encoder():
     from spcodec.encoder.retrain import RunControl
     assert PATCH_LAYERS_DEFAULT == PatchConfig().layers
     assert VIEWER_BLUR_VARIANCE == config.VIEWER_BLUR_VARIANCE == EncoderConfig().blur_variance
-    assert NESTED_PATCH_LAYERS == config.NESTED_PATCH_LAYERS
+    assert RETRAINED_PATCH_LAYERS == config.RETRAINED_PATCH_LAYERS
     assert CHECKPOINT_EVERY == RunControl().checkpoint_every
     defaults = RetrainConfig()
     assert RETRAIN_DEFAULTS == {name: getattr(defaults, name) for name in RETRAIN_DEFAULTS}

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 import spcodec
 from spcodec.cli import build_parser, encode_config, main
 from spcodec.encoder.config import (
-    NESTED_PATCH_LAYERS,
+    RETRAINED_PATCH_LAYERS,
     EncoderConfig,
     PatchConfig,
     RetrainConfig,
@@ -177,12 +177,14 @@ def test_the_full_share_reaches_the_training_and_needs_nested(tmp_path, scene, c
 
 
 @pytest.mark.parametrize("extra, layers", [
-    ([], PatchConfig().layers),
-    (["--nested"], NESTED_PATCH_LAYERS),
+    ([], RETRAINED_PATCH_LAYERS),
+    (["--nested"], RETRAINED_PATCH_LAYERS),
+    (["--no-retrain"], PatchConfig().layers),
     (["--nested", "--patch-layers", "4"], 4),
-    (["--nested", "--patch-layers", str(PatchConfig().layers)], PatchConfig().layers),
+    (["--patch-layers", str(PatchConfig().layers)], PatchConfig().layers),
+    (["--no-retrain", "--patch-layers", "6"], 6),
 ])
-def test_nested_encodes_take_finer_layers_unless_told(extra, layers):
+def test_retrained_encodes_take_finer_layers_unless_told(extra, layers):
     args = build_parser().parse_args(["encode", "in.ply", "-o", "out.spc", *extra])
     patch = encode_config(args).patch
     assert patch.layers == layers

@@ -256,9 +256,8 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
             importance = importance[top]
             encoding = encoder.layer(trained, quantized, importance)
             stats["rate"]["corrected"] = True
-    if layer_of is not None:  # what each prefix of the file shows on the training views
-        train_stats["prefix_psnr"] = _prefix_psnr(stage, trained, quantized,
-                                                  prefix_ends(importance, layers))
+    if len(encoding.layers) > 1:  # what each prefix of the file shows on the training views
+        train_stats["prefix_psnr"] = _prefix_psnr(stage, trained, quantized, encoding.order)
     gain = train_stats.get("psnr_finished", train_stats["psnr_quantized"]) \
         - train_stats["psnr_quantized"]
     report.done(f"quantized {train_stats['psnr_quantized']:.2f} dB, finish {gain:+.2f} dB on the "
@@ -271,13 +270,19 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
 
 
 def _prefix_psnr(stage: RetrainStage, trained: GaussianCloud, quantized: Quantized,
-                 ends: list[int]) -> list[dict]:
+                 order: list[np.ndarray]) -> list[dict]:
     """Mean PSNR on the training views of the sketch with each patch prefix that ends at a
     non-empty layer, as the file codes it (positions before their grid): ``{"layer": K,
-    "psnr": dB}`` for the prefix of file layers 0..K."""
+    "psnr": dB}`` for the prefix of file layers 0..K. ``order`` holds each patch layer's rows
+    of ``trained``, first layer first (:attr:`PatchEncoding.order`)."""
     coded = quantized_cloud(quantized, trained.means, trained.sh_degree)
-    return [{"layer": k + 1, "psnr": round(stage.psnr(coded.subset(np.arange(end))), 3)}
-            for k, end in enumerate(ends) if end and (k == 0 or end > ends[k - 1])]
+    rows = np.zeros(0, np.int64)
+    scores = []
+    for k, members in enumerate(order):
+        if len(members):
+            rows = np.concatenate([rows, members])
+            scores.append({"layer": k + 1, "psnr": round(stage.psnr(coded.subset(rows)), 3)})
+    return scores
 
 
 def build_targets(cloud: GaussianCloud, config: EncoderConfig, dataset: str | Path | None,

@@ -140,6 +140,24 @@ def test_a_nested_encode_stores_the_layers_fixed_before_training(scene):
     assert len(spcodec.decode(result.data)) == len(result.source_index)
 
 
+def test_a_plain_retrained_encode_records_what_each_of_its_prefixes_shows(scene):
+    """Not only nested files: every retrained file of several layers says, per prefix, what it
+    scored on the training views, for a viewer choosing where to stop on a slow link."""
+    config = EncoderConfig(seed=3, retrain=dataclasses.replace(QUICK, nested=False),
+                           max_sketch_share=None,
+                           patch=dataclasses.replace(PatchConfig(), layers=4,
+                                                     layer_fractions=geometric_fractions(4)))
+    result = encode(scene, config)
+    layers = spcodec.inspect(result.data).to_json()["layers"][1:]
+    prefix = result.stats["retrain"]["prefix_psnr"]
+    assert [p["layer"] for p in prefix] == [k + 1 for k, layer in enumerate(layers)
+                                            if layer["gaussians"]]
+    assert len(prefix) == 4 and prefix[-1]["psnr"] > prefix[0]["psnr"]
+    # the last prefix is the whole file, which the finish scored on the same views
+    assert prefix[-1]["psnr"] == pytest.approx(result.stats["retrain"]["psnr_finished"], abs=0.01)
+    assert spcodec.inspect(result.data).to_json()["metadata"]["stats"]["prefix_psnr"] == prefix
+
+
 def test_rate_control_drops_from_the_last_layer_first(scene):
     config = EncoderConfig(seed=3, retrain=QUICK, max_sketch_share=None)
     free = encode(scene, config)

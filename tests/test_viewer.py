@@ -294,7 +294,7 @@ def test_a_z_up_scene_stands_upright_from_the_axis_its_file_stores(tmp_path):
 
 
 def test_the_hud_says_what_the_encoder_measured_for_the_prefix_on_screen(scene, tmp_path):
-    """A nested encode stores each prefix's PSNR in the metadata (``stats.prefix_psnr``); the page
+    """A retrained encode stores each prefix's PSNR in the metadata (``stats.prefix_psnr``); the page
     shows the one for the layers on screen, and ignores a malformed table."""
     from spcodec.writer import WriteOptions, build_bitstream
 

@@ -81,7 +81,7 @@ function formatBytes(n) {
 
 /**
  * One line on what the prefix on screen scored when it was encoded, from the metadata's
- * `stats.prefix_psnr` (`[{layer, psnr}]`, written by nested encodes; untrusted like the rest of
+ * `stats.prefix_psnr` (`[{layer, psnr}]`, written by retrained encodes; untrusted like the rest of
  * the file, so anything malformed gives no line), or null.
  */
 function prefixLine(table, layersShown) {

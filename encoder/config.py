@@ -271,10 +271,10 @@ Gaussians of the one before: a viewer refines in steps of equal relative size, a
 RETRAINED_PATCH_LAYERS = 6
 """Patch layers of a retrained encode (``--nested`` or not) unless ``--patch-layers`` says
 otherwise; ``PatchConfig.layers`` (3) stays the no-retrain default. A streaming viewer gets a
-prefix at 10, 16, 22, 32, 47 and 68 % of the bytes instead of 10, 18 and 33 %, each as good as the
-three-layer file's prefix near its size, and the full file keeps its picture: guitar, 3000 steps,
-PlayCanvas orbit / close 40.65 / 35.10 dB against 40.66 / 35.09 for 2.6 % more bytes (one Draco
-cloud and one zlib stream per layer; docs/RESULTS.md 15.2, 15.3)."""
+prefix at 10, 15, 22, 32, 46 and 68 % of the bytes instead of 10, 17 and 33 %, each about as good
+as the three-layer file's prefix near its size, and the full file keeps its picture: guitar at a
+quarter of SPZ's bytes, PlayCanvas orbit / close 42.68 / 37.07 dB at 360,070 B against 42.71 /
+37.03 at 355,651 B (a Draco cloud and a zlib stream more per layer; docs/RESULTS.md 15.2, 15.3)."""
 
 
 VIEWER_BLUR_VARIANCE = 0.075

@@ -195,13 +195,16 @@ def cmd_info(args: argparse.Namespace) -> int:
     if doc["complete_layers"] < len(doc["layers"]):
         print(_partial_file_note(doc))
     print("layers:")
+    scores = _prefix_scores(doc["metadata"])
     for layer in doc["layers"]:
         end = layer["end_offset"] if layer["end_offset"] is not None else \
             f"{layer['inner_end_offset']} of the inflated file"
         state = f"complete at byte {end}" if layer["complete"] else \
             f"INCOMPLETE (needs the bytes up to {end})"
+        score = f"; layers 0..{layer['index']}: {scores[layer['index']]:.2f} dB on the " \
+            "encoder's training views" if layer["index"] in scores else ""
         print(f"  L{layer['index']:<3} {layer['kind']:<7} {layer['gaussians']:>10} Gaussians, "
-              f"{state}")
+              f"{state}{score}")
     print("sections:")
     for s in doc["sections"]:
         print(f"  #{s['index']:<3} L{s['layer']:<3} {s['type']:<20} {s['codec']:<5} "
@@ -209,6 +212,18 @@ def cmd_info(args: argparse.Namespace) -> int:
     if doc["metadata"]:
         print("metadata: " + json.dumps(doc["metadata"], sort_keys=True)[:200])
     return EXIT_OK
+
+
+def _prefix_scores(metadata) -> dict[int, float]:
+    """Layer -> the PSNR the encoder measured for the prefix ending there (metadata
+    ``stats.prefix_psnr``). Metadata is untrusted: anything malformed is left out."""
+    table = metadata.get("stats", {}).get("prefix_psnr") \
+        if isinstance(metadata, dict) and isinstance(metadata.get("stats"), dict) else None
+    if not isinstance(table, list):
+        return {}
+    return {entry["layer"]: float(entry["psnr"]) for entry in table
+            if isinstance(entry, dict) and type(entry.get("layer")) is int
+            and type(entry.get("psnr")) in (int, float) and math.isfinite(entry["psnr"])}
 
 
 def _partial_file_note(doc: dict) -> str:

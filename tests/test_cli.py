@@ -183,6 +183,35 @@ def _cut(small_file: bytes, gzip: bool = False) -> tuple[bytes, list[int]]:
     return data, ends
 
 
+@pytest.mark.parametrize("stats, shown", [
+    ({"prefix_psnr": [{"layer": 1, "psnr": 24.5}, {"layer": 2, "psnr": 30.25}]},
+     {1: "24.50", 2: "30.25"}),
+    ({"prefix_psnr": [{"layer": 1, "psnr": "24 dB"}, {"layer": 2.0, "psnr": 30},
+                      {"layer": 2, "psnr": float("nan")}]}, {}),
+    ({"prefix_psnr": "36 dB"}, {}),
+    ("stats", {}),
+])
+def test_info_shows_what_the_encoder_measured_for_each_prefix(capsys, tmp_path, small_scene,
+                                                               stats, shown):
+    """A layer's line carries the prefix PSNR the metadata records for it; metadata is
+    untrusted, so malformed entries are left out rather than failing the command."""
+    import dataclasses
+
+    from spcodec.writer import build_bitstream
+    src = tmp_path / "scored.spc"
+    src.write_bytes(build_bitstream(dataclasses.replace(
+        small_scene, metadata={**small_scene.metadata, "stats": stats})))
+    code, out, _ = run(capsys, "info", str(src))
+    lines = {int(line.split()[0][1:]): line for line in out.splitlines()
+             if line.startswith("  L")}
+    assert code == 0 and len(lines) == 3
+    for layer, line in lines.items():
+        assert ("dB" in line) == (layer in shown), line
+        if layer in shown:
+            assert line.endswith(f"layers 0..{layer}: {shown[layer]} dB on the encoder's "
+                                 "training views"), line
+
+
 def test_info_says_which_layers_a_truncated_file_holds(capsys, tmp_path, small_file):
     data, ends = _cut(small_file)
     assert len(ends) == 3

@@ -24,16 +24,15 @@ continues where it stopped. matplotlib is needed for the figure only.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import tempfile
 import time
 from pathlib import Path
 
 import spcodec
+from spcodec.cli import build_parser, encode_config
 from spcodec.encoder.config import EncoderConfig
 from spcodec.encoder.pipeline import encode
-from spcodec.encoder.presets import preset_config
 
 import viewer_yardstick  # bench/ is on sys.path
 from bench_quality import SCENES
@@ -80,14 +79,14 @@ def verdict(rows: list[dict], framing: str) -> dict:
 
 def config_for(label: str, iterations: int, layers: int | None, up: str,
                antialiased: bool) -> EncoderConfig:
-    """The default retrained encode (``spcodec encode`` with --iterations), nested or not."""
-    config = preset_config("balanced", EncoderConfig(), retrain=True)
-    config.retrain = dataclasses.replace(config.retrain, iterations=iterations,
-                                         nested=label == "nested")
-    if layers is not None:
-        config.patch = dataclasses.replace(config.patch, layers=layers)
-    config.up, config.antialiased = up, antialiased
-    return config
+    """The encode ``spcodec encode X.ply -o F --iterations N [--nested] [--patch-layers L]
+    [--up U] [--antialiased]`` runs: the CLI's own configuration, defaults included (six patch
+    layers when retraining)."""
+    argv = ["encode", "in.ply", "-o", "out.spc", "--iterations", str(iterations), f"--up={up}"]
+    argv += ["--nested"] if label == "nested" else []
+    argv += ["--patch-layers", str(layers)] if layers is not None else []
+    argv += ["--antialiased"] if antialiased else []
+    return encode_config(build_parser().parse_args(argv))
 
 
 def run(args: argparse.Namespace) -> list[dict]:

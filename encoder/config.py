@@ -277,6 +277,16 @@ quarter of SPZ's bytes, PlayCanvas orbit / close 42.68 / 37.07 dB at 360,070 B a
 37.03 at 355,651 B (a Draco cloud and a zlib stream more per layer; docs/RESULTS.md 15.2, 15.3)."""
 
 
+RETRAINED_MAX_SKETCH_SHARE = 0.025
+"""``EncoderConfig.max_sketch_share`` of a retrained encode (the CLI's; a library caller sets it).
+Retraining fills the room with patch Gaussians that serve the picture better than the sketch's
+polynomial models, and a small sketch moves every layer prefix earlier: guitar at a quarter of
+SPZ's bytes, 3000 steps, PlayCanvas orbit / close, the file 42.93 / 37.23 dB against 42.68 /
+37.07 with a tenth, the first picture at 2.6 % of the bytes instead of 9.5 %, each later prefix
+15-24 kB earlier at the same picture; donut +0.21 / +0.23 dB, biker -0.04 / +0.05
+(docs/RESULTS.md 15.4). ``--no-retrain`` keeps ``max_sketch_share``'s tenth."""
+
+
 VIEWER_BLUR_VARIANCE = 0.075
 """The low-pass the PlayCanvas engine draws with (it adds 0.3 in half-pixel units: 0.075 px^2,
 ``../shared/tools/viewer-render/README.md``), and the encoder's default. A larger one (INRIA's 0.3)

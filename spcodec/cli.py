@@ -485,6 +485,7 @@ def encode_config(args: argparse.Namespace):
     import dataclasses
 
     from .encoder.config import (
+        RETRAINED_MAX_SKETCH_SHARE,
         RETRAINED_PATCH_LAYERS,
         TARGET_GROUPS_PER_ENTRY,
         EncoderConfig,
@@ -519,6 +520,8 @@ def encode_config(args: argparse.Namespace):
         config.patch = dataclasses.replace(config.patch, groups_per_entry=TARGET_GROUPS_PER_ENTRY)
     config.target_psnr = args.target_psnr
     config.up, config.antialiased = args.up, args.antialiased
+    if retrain:
+        config.max_sketch_share = RETRAINED_MAX_SKETCH_SHARE
     if args.blur_variance is not None:
         config.blur_variance = args.blur_variance
     if args.nested_full_share is not None and not args.nested:

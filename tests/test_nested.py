@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 import spcodec
 from spcodec.cli import build_parser, encode_config, main
 from spcodec.encoder.config import (
+    RETRAINED_MAX_SKETCH_SHARE,
     RETRAINED_PATCH_LAYERS,
     EncoderConfig,
     PatchConfig,
@@ -204,9 +205,13 @@ def test_the_full_share_reaches_the_training_and_needs_nested(tmp_path, scene, c
     (["--no-retrain", "--patch-layers", "6"], 6),
 ])
 def test_retrained_encodes_take_finer_layers_unless_told(extra, layers):
+    """Six layers and a small sketch when retraining; three and a tenth without."""
     args = build_parser().parse_args(["encode", "in.ply", "-o", "out.spc", *extra])
-    patch = encode_config(args).patch
+    config = encode_config(args)
+    patch = config.patch
     assert patch.layers == layers
+    assert config.max_sketch_share == (EncoderConfig().max_sketch_share if "--no-retrain" in extra
+                                       else RETRAINED_MAX_SKETCH_SHARE)
     default = layers == PatchConfig().layers
     assert patch.layer_fractions == (PatchConfig().layer_fractions if default
                                      else geometric_fractions(layers))

@@ -544,6 +544,7 @@ class EncoderConfig:
     #: (None: no limit). With retraining the share is judged before training, on the file the
     #: prune factor makes; with ``target_size``, of the target (left alone, a small target was
     #: all sketch: guitar at 50 kB, 10,350 sketch Gaussians and 2 patch); not with ``target_psnr``.
+    #: The CLI's retrained encodes use :data:`RETRAINED_MAX_SKETCH_SHARE` instead.
     max_sketch_share: float | None = 0.1
 
     def seeded(self) -> "EncoderConfig":

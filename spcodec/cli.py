@@ -217,8 +217,8 @@ def cmd_info(args: argparse.Namespace) -> int:
 def _prefix_scores(metadata) -> dict[int, float]:
     """Layer -> the PSNR the encoder measured for the prefix ending there (metadata
     ``stats.prefix_psnr``). Metadata is untrusted: anything malformed is left out."""
-    table = metadata.get("stats", {}).get("prefix_psnr") \
-        if isinstance(metadata, dict) and isinstance(metadata.get("stats"), dict) else None
+    stats = metadata.get("stats") if isinstance(metadata, dict) else None
+    table = stats.get("prefix_psnr") if isinstance(stats, dict) else None
     if not isinstance(table, list):
         return {}
     return {entry["layer"]: float(entry["psnr"]) for entry in table

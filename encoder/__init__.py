@@ -2,7 +2,8 @@
 
 ``spcodec.encoder.encode(cloud, config)`` runs the no-retrain pipeline (categorize, refine, sketch,
 patch, write); :class:`EncoderConfig` holds every parameter; :func:`preset_config` gives the named
-operating points. The picture tools it trains and judges with (renderer, cameras, datasets,
+operating points (with ``retrain=True``, the retrained layout the CLI writes) and :func:`sized` aims
+one at a file size. The picture tools it trains and judges with (renderer, cameras, datasets,
 metrics, evaluation) are a package of their own, :mod:`spcodec.imaging`. Names are resolved on
 first use, so ``import spcodec.encoder`` alone loads neither scikit-learn nor torch.
 """
@@ -13,7 +14,7 @@ from typing import Any
 
 _EXPORTS = {
     "encode": "pipeline", "EncoderConfig": "pipeline", "EncodeResult": "pipeline",
-    "preset_config": "presets", "PRESETS": "presets",
+    "preset_config": "presets", "PRESETS": "presets", "sized": "presets",
 }
 
 __all__ = sorted(_EXPORTS)

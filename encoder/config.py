@@ -278,7 +278,7 @@ quarter of SPZ's bytes, PlayCanvas orbit / close 42.68 / 37.07 dB at 360,070 B a
 
 
 RETRAINED_MAX_SKETCH_SHARE = 0.025
-"""``EncoderConfig.max_sketch_share`` of a retrained encode (the CLI's; a library caller sets it).
+"""``EncoderConfig.max_sketch_share`` of a retrained encode (``preset_config(..., retrain=True)``).
 Retraining fills the room with patch Gaussians that serve the picture better than the sketch's
 polynomial models, and a small sketch moves every layer prefix earlier: guitar at a quarter of
 SPZ's bytes, 3000 steps, PlayCanvas orbit / close, the file 42.93 / 37.23 dB against 42.68 /
@@ -532,8 +532,8 @@ class EncoderConfig:
     retrain: "RetrainConfig | None" = None
     #: Rate control: aim the file at this many bytes (within 5 %) by choosing how many patch
     #: Gaussians survive pruning (None: the size follows from the settings). ``--target-size``
-    #: also sets ``patch.groups_per_entry`` to :data:`TARGET_GROUPS_PER_ENTRY`; a library caller
-    #: who wants the same file sets both.
+    #: also sets ``patch.groups_per_entry`` to :data:`TARGET_GROUPS_PER_ENTRY`;
+    #: ``encoder.presets.sized`` sets both for a library caller.
     target_size: int | None = None
     #: Quality control: the smallest file whose close-up PSNR (``spcodec eval``'s views at half
     #: their distance) reaches this many dB, again by choosing how many patch Gaussians survive
@@ -544,7 +544,8 @@ class EncoderConfig:
     #: (None: no limit). With retraining the share is judged before training, on the file the
     #: prune factor makes; with ``target_size``, of the target (left alone, a small target was
     #: all sketch: guitar at 50 kB, 10,350 sketch Gaussians and 2 patch); not with ``target_psnr``.
-    #: The CLI's retrained encodes use :data:`RETRAINED_MAX_SKETCH_SHARE` instead.
+    #: Retrained encodes (``preset_config(..., retrain=True)``) use
+    #: :data:`RETRAINED_MAX_SKETCH_SHARE` instead.
     max_sketch_share: float | None = 0.1
 
     def seeded(self) -> "EncoderConfig":

@@ -22,7 +22,15 @@ from __future__ import annotations
 
 import dataclasses
 
-from .config import EncoderConfig, RetrainConfig
+from .config import (
+    RETRAINED_MAX_SKETCH_SHARE,
+    RETRAINED_PATCH_LAYERS,
+    TARGET_GROUPS_PER_ENTRY,
+    EncoderConfig,
+    PatchConfig,
+    RetrainConfig,
+    geometric_fractions,
+)
 
 _SH_BANDS = {"SH_BAND_1": 9, "SH_BAND_2": 15, "SH_BAND_3": 21}
 _SH_TRIPLETS = {"SH_BAND_1": 3, "SH_BAND_2": 3, "SH_BAND_3": 3}
@@ -64,24 +72,51 @@ def retrains(name: str) -> bool:
 
 def preset_config(name: str, base: EncoderConfig | None = None,
                   retrain: bool = False) -> EncoderConfig:
-    """``base`` (default: a fresh EncoderConfig) with the preset's settings applied; with
-    ``retrain``, also its retraining settings (on ``base.retrain`` or a default RetrainConfig).
-    A preset that never retrains refuses ``retrain`` with ValueError."""
+    """``base`` (default: a fresh EncoderConfig) with the preset's settings applied. With
+    ``retrain``, also its retraining settings (on ``base.retrain`` or a default RetrainConfig) and
+    the layout a retrained file is best with: :data:`RETRAINED_PATCH_LAYERS` geometric layers and
+    the sketch within :data:`RETRAINED_MAX_SKETCH_SHARE` of the file. The CLI builds every encode
+    here, so a library caller gets the file ``spcodec encode`` writes. A preset that never
+    retrains refuses ``retrain`` with ValueError."""
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}: use one of {', '.join(PRESETS)}")
     base = base or EncoderConfig()
     values = PRESETS[name]
-    retrain_config = base.retrain
+    patch = dataclasses.replace(base.patch, entry_dims=dict(values["entry_dims"]),
+                                position_bits=values.get("position_bits",
+                                                         base.patch.position_bits))
+    retrain_config, sketch_share = base.retrain, base.max_sketch_share
     if retrain:
         if not retrains(name):
             raise ValueError(f"preset {name!r} keeps every Gaussian and never retrains")
         retrain_config = dataclasses.replace(base.retrain or RetrainConfig(), **values["retrain"])
+        patch = with_layers(patch, RETRAINED_PATCH_LAYERS)
+        sketch_share = RETRAINED_MAX_SKETCH_SHARE
     return dataclasses.replace(
         base,
-        patch=dataclasses.replace(base.patch, entry_dims=dict(values["entry_dims"]),
-                                  position_bits=values.get("position_bits",
-                                                           base.patch.position_bits)),
+        patch=patch,
         refine=dataclasses.replace(base.refine, tau_max=values["tau_max"]),
         use_sketch=base.use_sketch and values.get("use_sketch", True),
         retrain=retrain_config,
+        max_sketch_share=sketch_share,
     )
+
+
+def with_layers(patch: PatchConfig, layers: int) -> PatchConfig:
+    """``patch`` cut into ``layers`` layers: the default three keep their measured shares, any
+    other count takes :func:`geometric_fractions`."""
+    if layers == patch.layers:
+        return patch
+    default = PatchConfig()
+    fractions = (default.layer_fractions if layers == default.layers
+                 else geometric_fractions(layers))
+    return dataclasses.replace(patch, layers=layers, layer_fractions=fractions)
+
+
+def sized(config: EncoderConfig, target_size: int) -> EncoderConfig:
+    """``config`` aimed at ``target_size`` bytes by rate control, with the smaller codebooks
+    (:data:`TARGET_GROUPS_PER_ENTRY`) that leave the bytes to Gaussians, as ``--target-size``
+    does."""
+    return dataclasses.replace(
+        config, target_size=target_size,
+        patch=dataclasses.replace(config.patch, groups_per_entry=TARGET_GROUPS_PER_ENTRY))

@@ -484,14 +484,8 @@ def encode_config(args: argparse.Namespace):
     """The EncoderConfig the encode options describe (checked, with one-line errors)."""
     import dataclasses
 
-    from .encoder.config import (
-        RETRAINED_MAX_SKETCH_SHARE,
-        RETRAINED_PATCH_LAYERS,
-        TARGET_GROUPS_PER_ENTRY,
-        EncoderConfig,
-        geometric_fractions,
-    )
-    from .encoder.presets import preset_config, retrains
+    from .encoder.config import EncoderConfig
+    from .encoder.presets import preset_config, retrains, sized, with_layers
     from .encoder.ratecontrol import parse_size
 
     retrain = not args.no_retrain and retrains(args.preset)
@@ -515,24 +509,16 @@ def encode_config(args: argparse.Namespace):
         seed=args.seed, n_jobs=args.jobs, use_sketch=not args.no_sketch, codec=args.codec,
         gzip=args.gzip), retrain=retrain)
     if args.target_size is not None:
-        config.target_size = parse_size(args.target_size)
-        # codebooks shrink with the patch, so small targets spend their bytes on Gaussians
-        config.patch = dataclasses.replace(config.patch, groups_per_entry=TARGET_GROUPS_PER_ENTRY)
+        config = sized(config, parse_size(args.target_size))
     config.target_psnr = args.target_psnr
     config.up, config.antialiased = args.up, args.antialiased
-    if retrain:
-        config.max_sketch_share = RETRAINED_MAX_SKETCH_SHARE
     if args.blur_variance is not None:
         config.blur_variance = args.blur_variance
     if args.nested_full_share is not None and not args.nested:
         raise UsageError("--nested-full-share sets how --nested trains: give --nested too, or "
                          "drop it")
-    layers = args.patch_layers
-    if layers is None and retrain:
-        layers = RETRAINED_PATCH_LAYERS
-    if layers is not None and layers != config.patch.layers:
-        config.patch = dataclasses.replace(config.patch, layers=layers,
-                                           layer_fractions=geometric_fractions(layers))
+    if args.patch_layers is not None:
+        config.patch = with_layers(config.patch, args.patch_layers)
     if args.position_bits is not None:
         config.patch = dataclasses.replace(config.patch, position_bits=args.position_bits)
     if args.tau_max is not None:

@@ -196,6 +196,28 @@ def test_the_full_share_reaches_the_training_and_needs_nested(tmp_path, scene, c
     assert not out.exists()
 
 
+def test_a_library_caller_gets_the_layout_the_command_line_writes():
+    """preset_config(..., retrain=True) and sized() hold the retrained defaults, so a library
+    encode and ``spcodec encode --target-size`` describe the same file; a caller's own layer
+    count still wins through with_layers."""
+    from spcodec.encoder import preset_config, sized
+    from spcodec.encoder.config import TARGET_GROUPS_PER_ENTRY
+    from spcodec.encoder.presets import with_layers
+    library = sized(preset_config("balanced", EncoderConfig(seed=7), retrain=True), 50_000)
+    args = build_parser().parse_args(["encode", "in.ply", "-o", "out.spc", "--seed", "7",
+                                      "--target-size", "50000"])
+    assert library == encode_config(args)
+    assert library.patch.layers == RETRAINED_PATCH_LAYERS
+    assert library.max_sketch_share == RETRAINED_MAX_SKETCH_SHARE
+    assert library.patch.groups_per_entry == TARGET_GROUPS_PER_ENTRY
+    plain = preset_config("balanced", EncoderConfig(seed=7))
+    assert plain.patch.layers == PatchConfig().layers
+    assert plain.max_sketch_share == EncoderConfig().max_sketch_share
+    three = with_layers(library.patch, PatchConfig().layers)
+    assert three.layer_fractions == PatchConfig().layer_fractions
+    assert with_layers(three, 8).layer_fractions == geometric_fractions(8)
+
+
 @pytest.mark.parametrize("extra, layers", [
     ([], RETRAINED_PATCH_LAYERS),
     (["--nested"], RETRAINED_PATCH_LAYERS),

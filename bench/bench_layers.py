@@ -164,13 +164,15 @@ def plot(rows: list[dict], path: Path, rd: Path | None) -> None:
                         color="C4", markersize=9, label="retrained for its size")
             ax.set_xscale("log")
             ax.xaxis.set_major_formatter(ScalarFormatter())
-            ax.xaxis.set_minor_formatter(NullFormatter())
+            low, high = ax.get_xlim()  # within one decade no major tick shows: label the minor
+            ax.xaxis.set_minor_formatter(ScalarFormatter() if high / low < 10 else NullFormatter())
             ax.set_title(f"{scene}, {framing} (PlayCanvas)")
             ax.set_xlabel("bytes received (kB)")
             ax.grid(alpha=0.3, which="both")
         axes[0][col].set_ylabel("PSNR vs original, orbit (dB)")
         axes[1][col].set_ylabel("PSNR vs original, close-up (dB)")
-    axes[0][0].legend(loc="lower right", fontsize=8)
+    for ax in axes[0]:  # each scene's own: not every scene has a nested encode
+        ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)

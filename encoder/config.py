@@ -284,7 +284,8 @@ polynomial models, and a small sketch moves every layer prefix earlier: guitar a
 SPZ's bytes, 3000 steps, PlayCanvas orbit / close, the file 42.93 / 37.23 dB against 42.68 /
 37.07 with a tenth, the first picture at 2.6 % of the bytes instead of 9.5 %, each later prefix
 15-24 kB earlier at the same picture; donut +0.21 / +0.23 dB, biker -0.04 / +0.05, kacytran
-0 / -0.48 (its fortieth holds no cluster; docs/RESULTS.md 15.4, 13.13). ``--no-retrain`` keeps ``max_sketch_share``'s tenth."""
+0 / -0.48 (its fortieth holds no cluster; docs/RESULTS.md 15.4, 13.13). ``--no-retrain`` keeps
+``max_sketch_share``'s tenth."""
 
 
 VIEWER_BLUR_VARIANCE = 0.075

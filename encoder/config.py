@@ -531,7 +531,8 @@ class EncoderConfig:
     blur_variance: float = VIEWER_BLUR_VARIANCE
     #: Prune and retrain the patch (None: the no-retrain encoder). See :mod:`.retrain`.
     retrain: "RetrainConfig | None" = None
-    #: Rate control: aim the file at this many bytes (within 5 %) by choosing how many patch
+    #: Rate control: a file of at most this many bytes (within 1 % under it where the patch
+    #: allows, encoder/ratecontrol.py) by choosing how many patch
     #: Gaussians survive pruning (None: the size follows from the settings). ``--target-size``
     #: also sets ``patch.groups_per_entry`` to :data:`TARGET_GROUPS_PER_ENTRY`;
     #: ``encoder.presets.sized`` sets both for a library caller.

@@ -150,7 +150,7 @@ def print_summary(stats: dict, stream: TextIO | None = None) -> None:
         actual = stats["bytes"]
         print_(f"  target {rate['target_bytes']:,} bytes: predicted {rate['predicted_bytes']:,}, "
               f"actual {actual:,} ({100 * (actual / rate['target_bytes'] - 1):+.1f} %)"
-              + (", corrected once after the finish" if rate.get("corrected") else ""))
+              + (", trimmed to fit" if rate.get("trimmed") else ""))
         if rate.get("note"):
             print_(f"  note: {rate['note']}")
     aim = stats.get("quality_target")

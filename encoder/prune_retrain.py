@@ -30,7 +30,7 @@ from .nested import NestedEncoder, layer_priority, layers_of, nested_groups, pre
 from .patch import PatchEncoder, PatchEncoding, Quantized, quantized_cloud
 from .prune import kept_count, prune_by_importance, select
 from .qualitycontrol import CloseupJudge, check_reachable, fewest_reaching
-from .ratecontrol import SNAP_MARGIN, TRAIN_MARGIN, RatePlan, fit_count, plan_count, within
+from .ratecontrol import FIT_SLACK, SNAP_MARGIN, TOLERANCE, TRAIN_MARGIN, RatePlan, fit_count, plan_count
 from .retrain import RetrainStage, RunControl, spread
 from .stages import ProgressFactory, SceneWriter, SketchOutcome
 
@@ -142,7 +142,9 @@ def encode_pruned_patch(cloud: GaussianCloud, sketch: SketchOutcome, patch: Gaus
             "largest_count_short": max(short, default=0), "judgements": len(reach.judged)}
         keep = reach.count
     elif config.target_size is not None:
-        plan = plan_count(config.target_size, len(patch), _trial(writer, encoder, patch, weights))
+        # without retraining the trial's file is the one written: plan it to the fit's slack
+        plan = plan_count(config.target_size, len(patch), _trial(writer, encoder, patch, weights),
+                          TOLERANCE if retrain is not None else FIT_SLACK)
         stats["rate"] = {"target_bytes": config.target_size, "predicted_bytes":
                          plan.predicted_bytes, "fixed_bytes": plan.fixed_bytes,
                          "unpruned_bytes": plan.full_bytes, "predicted_count": plan.count}
@@ -165,7 +167,17 @@ def encode_pruned_patch(cloud: GaussianCloud, sketch: SketchOutcome, patch: Gaus
     if retrain is None:
         t = time.perf_counter()
         stage = progress("patch", None)
-        encoding = encoder.encode(patch.subset(kept), importance=weights[kept])
+        survivors, importance = patch.subset(kept), weights[kept]
+        quantized = encoder.quantize(survivors, encoder.kmeans_weights(importance))
+        encoding = encoder.layer(survivors, quantized, importance)
+        if plan is not None and len(writer.write(encoding)) > config.target_size:
+            # the plan landed within FIT_SLACK either side: trim the least important that spill
+            count, _ = fit_count(config.target_size, len(kept),
+                                 _sized(writer, encoder, survivors, quantized, importance))
+            top = prune_by_importance(importance, count)
+            encoding = encoder.layer(survivors.subset(top), quantized.subset(top), importance[top])
+            kept = kept[top]
+            stats["rate"]["trimmed"] = True
         stage.done(f"{len(kept)} Gaussians in {len(encoding.layers)} layers")
         times["patch"] = time.perf_counter() - t
         return PatchChoice(encoding, kept, stats)
@@ -248,14 +260,14 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
     encoding = encoder.layer(trained, quantized, importance)
     if plan is not None:
         size = len(writer.write(encoding))
-        if not within(size, config.target_size):  # the one correction after the finish
+        if size > config.target_size:  # the finish grew it: trim the least important
             count, size = fit_count(config.target_size, len(trained),
                                     _sized(writer, encoder, trained, quantized, importance))
             top = prune_by_importance(importance, count)
             trained, quantized, kept = trained.subset(top), quantized.subset(top), kept[top]
             importance = importance[top]
             encoding = encoder.layer(trained, quantized, importance)
-            stats["rate"]["corrected"] = True
+            stats["rate"]["trimmed"] = True
     if len(encoding.layers) > 1:  # what each prefix of the file shows on the training views
         train_stats["prefix_psnr"] = _prefix_psnr(stage, trained, quantized, encoding.order)
     gain = train_stats.get("psnr_finished", train_stats["psnr_quantized"]) \

@@ -1,4 +1,10 @@
-"""Rate control: ``--target-size SIZE`` lands the file within 5 % of SIZE, or says why it cannot.
+"""Rate control: ``--target-size SIZE`` writes a file of at most SIZE bytes, within 1 % of it
+where the scene allows, or says why it cannot.
+
+The target is a budget (a download, a quota, a quarter of another codec's file): a file over it
+is a broken promise however small the excess, and one far under it wastes bytes that would have
+bought Gaussians. So every size the encoder fits against is a real write, and the last word is
+a trim that only ever removes the least important Gaussians.
 
 The size of a file is the sketch and headers (fixed once categorization is done) plus the patch,
 which grows almost linearly with the number of patch Gaussians for given codebook settings. So
@@ -11,12 +17,13 @@ the one free knob is how many patch Gaussians survive pruning:
 2. **Retrain** more Gaussians than predicted (:data:`TRAIN_MARGIN`, or :data:`SNAP_MARGIN` when
    retraining snaps to codebooks): retraining changes the statistics, and surplus is cheap to
    drop later while a shortfall cannot be made up.
-3. **Fit** (:func:`fit_count`): keep the most important Gaussians whose file is as close to the
-   target as a bisection over real writes gets (indices and positions only: no k-means). With
-   snapping this happens when snapping starts, on the file its codebooks make, so most training
-   steps come after the drop; otherwise after retraining and quantization. Then check the final
-   file once more and drop again if training or the finish moved it out of tolerance (the one
-   correction).
+3. **Fit** (:func:`fit_count`): keep the most important Gaussians whose file is the largest at
+   or under the target, searched over real writes (indices and positions only: no k-means).
+   With snapping this happens when snapping starts, on the file its codebooks make, so most
+   training steps come after the drop; otherwise after retraining and quantization.
+4. **Trim**: the finish moves codebook entries and indices, so the final file can grow past the
+   target (by 0-2.5 % on the shared scenes); then the least important Gaussians go until it fits
+   again. A file that comes out under stays so: dropped Gaussians cannot come back.
 
 The predicted and actual sizes are both reported.
 """
@@ -30,7 +37,12 @@ from typing import Callable
 from spcodec.errors import UsageError
 
 TOLERANCE = 0.05
-"""The file must end within this fraction of the target."""
+"""How near the target the *prediction* (:func:`plan_count`) must land before retraining; the
+trained file is then fitted to the target exactly (:func:`fit_count`)."""
+
+FIT_SLACK = 0.01
+"""A fitted file is at most the target and, when the patch has Gaussians enough, no more than
+this fraction under it (the search stops there rather than bisecting to the last Gaussian)."""
 
 TRAIN_MARGIN = 0.06
 """Retrain this fraction more Gaussians than predicted (dropped again by :func:`fit_count`)."""
@@ -63,8 +75,9 @@ def parse_size(text: str) -> int:
     return int(round(value))
 
 
-def within(size: int, target: int) -> bool:
-    return abs(size - target) <= TOLERANCE * target
+def within(size: int, target: int, tolerance: float = TOLERANCE) -> bool:
+    """Whether ``size`` is within ``tolerance`` (a fraction) of ``target`` either way."""
+    return abs(size - target) <= tolerance * target
 
 
 @dataclass
@@ -80,8 +93,11 @@ class RatePlan:
     note: str = ""
 
 
-def plan_count(target: int, patch_count: int, trial: Callable[[int], int]) -> RatePlan:
-    """Patch Gaussians to keep so that a file written by ``trial(count)`` is ``target`` bytes.
+def plan_count(target: int, patch_count: int, trial: Callable[[int], int],
+               tolerance: float = TOLERANCE) -> RatePlan:
+    """Patch Gaussians to keep so that a file written by ``trial(count)`` is ``target`` bytes,
+    give or take ``tolerance`` (a fraction: loose before retraining, which changes the sizes
+    anyway; tight when the trial's file is the one written).
 
     ``trial`` must write a real file with the ``count`` most important patch Gaussians and return
     its size. Raises a UsageError when the target is below what the scene can reach.
@@ -89,14 +105,14 @@ def plan_count(target: int, patch_count: int, trial: Callable[[int], int]) -> Ra
     fixed = trial(0)
     fewest = min(MIN_PATCH, patch_count)
     smallest = trial(fewest) if patch_count else fixed
-    if target < smallest * (1 - TOLERANCE):
+    if target < smallest:
         raise UsageError(f"target size {target:,} bytes is too small for this scene: the sketch "
                          f"layer and headers alone take {fixed:,} bytes and the smallest useful "
                          f"file ({fewest} patch Gaussians) {smallest:,}; "
                          f"ask for at least {smallest:,} bytes")
     full = trial(patch_count)
     if target >= full:
-        note = "" if within(full, target) else (
+        note = "" if within(full, target, tolerance) else (
             f"target {target:,} bytes is above the unpruned encode ({full:,} bytes): every patch "
             "Gaussian is kept and the file stays smaller than the target")
         return RatePlan(patch_count, full, fixed, full, note)
@@ -115,7 +131,7 @@ def plan_count(target: int, patch_count: int, trial: Callable[[int], int]) -> Ra
         size = trial(count)
         if abs(size - target) < abs(best[1] - target):
             best = (count, size)
-        if within(size, target):
+        if within(size, target, tolerance):
             break
         streak = streak + 1 if (size > target) == above else 1
         above = size > target
@@ -124,26 +140,42 @@ def plan_count(target: int, patch_count: int, trial: Callable[[int], int]) -> Ra
 
 
 def fit_count(target: int, upper: int, size_of: Callable[[int], int]) -> tuple[int, int]:
-    """The count in ``1..upper`` whose ``size_of(count)`` (a real write) comes closest to
-    ``target`` from below or within tolerance, by bisection (sizes grow with the count)."""
+    """``(count, size_of(count))`` for the largest count in ``1..upper`` whose file is at most
+    ``target`` bytes; the search stops early at a count within :data:`FIT_SLACK` under it.
+
+    ``size_of`` must write a real file (sizes grow with the count, up to compression noise: the
+    result is always a measured size at or under the target, never an extrapolation). Sizes are
+    nearly linear in the count, so interpolation aimed at the middle of the window usually lands
+    in two or three writes; it falls back to bisection when it keeps landing on one side. When
+    even one Gaussian does not fit, ``(1, size)`` comes back over the target (the caller's plan
+    has refused such targets before).
+    """
     size = size_of(upper)
-    if size <= target * (1 + TOLERANCE):
+    if size <= target:
         return upper, size
-    lo, hi = 1, upper  # size_of(hi) is too large
-    best = (lo, size_of(lo))
+    lo, lo_size = 1, size_of(1)
+    if lo_size > target:
+        return lo, lo_size
+    hi, hi_size = upper, size
+    aim = target * (1 - FIT_SLACK / 2)
+    above, streak = None, 0
     while hi - lo > 1:
-        mid = (lo + hi) // 2
-        size = size_of(mid)
-        if size > target * (1 + TOLERANCE):
-            hi = mid
+        count = _interpolate(aim, lo, lo_size, hi, hi_size)
+        if not lo < count < hi or streak >= 2:
+            count = (lo + hi) // 2
+        size = size_of(count)
+        streak = streak + 1 if (size > target) == above else 1
+        above = size > target
+        if above:
+            hi, hi_size = count, size
         else:
-            lo, best = mid, (mid, size)
-            if within(size, target) and size >= target:
+            lo, lo_size = count, size
+            if size >= target * (1 - FIT_SLACK):
                 break
-    return best
+    return lo, lo_size
 
 
-def _interpolate(target: int, n0: int, s0: int, n1: int, s1: int) -> int:
+def _interpolate(target: float, n0: int, s0: int, n1: int, s1: int) -> int:
     """The count where the line through (n0, s0) and (n1, s1) reaches ``target``."""
     if s1 == s0:
         return n1

@@ -373,7 +373,7 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
 
     size = p.add_argument_group("size")
     size.add_argument("--target-size", metavar="SIZE",
-                      help="aim the file at SIZE bytes, within 5%%: 150k, 2MB, 300000 (k, M "
+                      help="a file of at most SIZE bytes: 150k, 2MB, 300000 (k, M "
                       "decimal; KiB, MiB binary); sets how many patch Gaussians survive pruning "
                       "and, below 8,192 of them, shrinks the codebooks to match (default: none, "
                       "the preset's downsample)")

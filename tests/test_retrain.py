@@ -30,6 +30,7 @@ from spcodec.encoder.config import (
     codebook_entries,
 )
 from spcodec.encoder.pipeline import encode
+from spcodec.encoder.ratecontrol import FIT_SLACK
 from spcodec.encoder.retrain import RunControl
 from spcodec.encoder.stages import SceneWriter
 from spcodec.errors import Interrupted, UsageError
@@ -70,7 +71,7 @@ def test_retraining_beats_the_no_retrain_encode_at_equal_size(scene):
     size = len(retrained.data)
     # the same size and sketch without retraining: the least important patch Gaussians dropped
     plain = encode(scene, EncoderConfig(seed=3, target_size=size, max_sketch_share=None))
-    assert abs(len(plain.data) - size) <= 0.05 * size
+    assert size * (1 - FIT_SLACK) <= len(plain.data) <= size
     ours = evaluate_against_reference(spcodec.decode(retrained.data), scene, EVAL).psnr
     theirs = evaluate_against_reference(spcodec.decode(plain.data), scene, EVAL).psnr
     assert ours > theirs + 1.0, (ours, theirs)
@@ -290,16 +291,17 @@ def test_ctrl_c_leaves_a_checkpoint_no_output_and_one_line(tmp_path, scene):
 def _target_size_lands(cloud, target: int, **changes) -> None:
     result = encode(cloud, dataclasses.replace(retrain_config(**changes), target_size=target))
     rate = result.stats["rate"]
-    assert abs(len(result.data) - target) <= 0.05 * target, rate
+    # never over; under by what the finish's codebooks saved after the fit (none are re-added)
+    assert 0.95 * target <= len(result.data) <= target, rate
     assert rate["target_bytes"] == target and rate["predicted_bytes"] > 0
 
 
-def test_target_size_lands_within_five_percent_synthetic(scene):
+def test_target_size_is_a_budget_the_file_fills_synthetic(scene):
     _target_size_lands(scene, 15_000)
 
 
 @pytest.mark.slow
-def test_target_size_lands_within_five_percent_on_a_real_scene():
+def test_target_size_is_a_budget_the_file_fills_on_a_real_scene():
     cloud = spcodec.read_ply(real_file("kacytran_try_sh3/point_cloud_iteration_7000.ply"))
     _target_size_lands(cloud, 60_000, iterations=20, finish_iterations=8)
 
@@ -308,14 +310,14 @@ def test_target_size_lands_within_five_percent_on_a_real_scene():
 def test_codebooks_that_shrink_with_the_patch_land_on_target_and_leave_room_for_gaussians():
     """kacytran (SH 3) at a quarter of SPZ's bytes: with 256 entries per codebook, codebooks
     were half the file; sized by the patch (fixed at the planned count, so the written file is
-    the one the fit measured) they are a small part, and the file still lands within 5 %."""
+    the one the fit measured) they are a small part, and the file still fits the target."""
     cloud = spcodec.read_ply(real_file("kacytran_try_sh3/point_cloud_iteration_7000.ply"))
     target = 46_640
     config = dataclasses.replace(retrain_config(iterations=20, finish_iterations=8),
                                  target_size=target,
                                  patch=PatchConfig(groups_per_entry=TARGET_GROUPS_PER_ENTRY))
     result = encode(cloud, config)
-    assert abs(len(result.data) - target) <= 0.05 * target, result.stats["rate"]
+    assert 0.95 * target <= len(result.data) <= target, result.stats["rate"]
     codebooks = result.stats["sections"]["PATCH_CODEBOOKS"]
     assert codebooks < 0.2 * len(result.data), result.stats["sections"]  # was 52 %
     # the codebooks written are those the fit measured: sized at the planned count, not at the

@@ -437,11 +437,14 @@ class RetrainConfig:
     #: guitar's close-up lost 2.2 dB more in PlayCanvas (docs/RESULTS.md section 13). 0: none.
     close_views: int = 96
     close_distance: float = 0.5
-    #: 512 at 50 degrees is the viewer's close-up at its own pixels (PlayCanvas at half the
-    #: orbit distance, 512x512). At 800 the crops taught detail 1.6 times finer than any
-    #: close-up shows and each saw a third of the frame's width instead of a half: biker at
-    #: SPZ/4 gained 1.9 dB at both framings from 512 (docs/RESULTS.md 13.15), for no step cost.
-    close_resolution: int = 512
+    #: Close frames of 400 pixels (at the 50-degree field of view), cut into 256-pixel crops:
+    #: at 800 each crop framed a third of the view's width and its pixels were 0.64 of a pixel
+    #: of a viewer's 512-pixel close-up, detail no framing shows; at 512 every scene at SPZ/4
+    #: gained at both framings (biker +1.8 / +1.8 dB in PlayCanvas), and at 400 (two thirds
+    #: of the width, pixels between the viewer's orbit and close-up) all five gained again
+    #: (+0.2 to +0.9 / +0.05 to +0.5 dB over 512): docs/RESULTS.md 13.15. A crop costs the
+    #: same pixels at any of them.
+    close_resolution: int = 400
     close_crop: int = 256
     #: Dataset mode: image downscale factor, and at most this many training views (None: all of
     #: the training split).

@@ -172,9 +172,8 @@ def encode_pruned_patch(cloud: GaussianCloud, sketch: SketchOutcome, patch: Gaus
         encoding = encoder.layer(survivors, quantized, importance)
         if plan is not None and len(writer.write(encoding)) > config.target_size:
             # the plan landed within FIT_SLACK either side: trim the least important that spill
-            count, _ = fit_count(config.target_size, len(kept),
-                                 _sized(writer, encoder, survivors, quantized, importance))
-            top = prune_by_importance(importance, count)
+            top = _rows_that_fit(config.target_size, writer, encoder, survivors, quantized,
+                                 importance)
             encoding = encoder.layer(survivors.subset(top), quantized.subset(top), importance[top])
             kept = kept[top]
             stats["rate"]["trimmed"] = True
@@ -231,9 +230,7 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
     if layer_of is not None:
         importance = layer_priority(importance, layer_of, layers)
     if plan is not None:  # keep the most important that fit the target
-        count, _ = fit_count(config.target_size, len(trained),
-                             _sized(writer, encoder, trained, quantized, importance))
-        top = prune_by_importance(importance, count)
+        top = _rows_that_fit(config.target_size, writer, encoder, trained, quantized, importance)
         trained, quantized, kept = trained.subset(top), quantized.subset(top), kept[top]
         importance = importance[top]
     if judge is not None:  # the fewest trained Gaussians that still reach the target
@@ -258,16 +255,13 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
     importance = ranked if layer_of is None else \
         layer_priority(ranked, layers_of(importance, layers), layers)
     encoding = encoder.layer(trained, quantized, importance)
-    if plan is not None:
-        size = len(writer.write(encoding))
-        if size > config.target_size:  # the finish grew it: trim the least important
-            count, size = fit_count(config.target_size, len(trained),
-                                    _sized(writer, encoder, trained, quantized, importance))
-            top = prune_by_importance(importance, count)
-            trained, quantized, kept = trained.subset(top), quantized.subset(top), kept[top]
-            importance = importance[top]
-            encoding = encoder.layer(trained, quantized, importance)
-            stats["rate"]["trimmed"] = True
+    if plan is not None and len(writer.write(encoding)) > config.target_size:
+        # the finish grew it: trim the least important
+        top = _rows_that_fit(config.target_size, writer, encoder, trained, quantized, importance)
+        trained, quantized, kept = trained.subset(top), quantized.subset(top), kept[top]
+        importance = importance[top]
+        encoding = encoder.layer(trained, quantized, importance)
+        stats["rate"]["trimmed"] = True
     if len(encoding.layers) > 1:  # what each prefix of the file shows on the training views
         train_stats["prefix_psnr"] = _prefix_psnr(stage, trained, quantized, encoding.order)
     gain = train_stats.get("psnr_finished", train_stats["psnr_quantized"]) \
@@ -353,10 +347,18 @@ def _row_fit(target: int, writer: SceneWriter, encoder: PatchEncoder):
     """Rate control when snapping starts: the most important rows whose quantized file fits
     ``target`` (None when all of them do)."""
     def fit(cloud: GaussianCloud, quantized: Quantized, importance: np.ndarray):
-        count, _ = fit_count(target, len(cloud), _sized(writer, encoder, cloud, quantized,
-                                                        importance))
-        return None if count >= len(cloud) else prune_by_importance(importance, count)
+        top = _rows_that_fit(target, writer, encoder, cloud, quantized, importance)
+        return None if len(top) >= len(cloud) else top
     return fit
+
+
+def _rows_that_fit(target: int, writer: SceneWriter, encoder: PatchEncoder, cloud: GaussianCloud,
+                   quantized: Quantized, importance: np.ndarray) -> np.ndarray:
+    """The rows of ``cloud`` to keep so that its file is at most ``target`` bytes: the most
+    important, as many as :func:`fit_count` finds room for on real writes."""
+    count, _ = fit_count(target, len(cloud), _sized(writer, encoder, cloud, quantized,
+                                                    importance))
+    return prune_by_importance(importance, count)
 
 
 def _sized(writer: SceneWriter, encoder: PatchEncoder, trained: GaussianCloud,

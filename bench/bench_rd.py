@@ -20,7 +20,9 @@ Methods (the paper's section "Comparison Methods"):
 * ``spz``: a real SPZ writer (PlayCanvas splat-transform on PATH or ``$SPLAT_TRANSFORM``, else
   gsply), decoded back and judged like the rest;
 * ``sog``: PlayCanvas's SOG, written by splat-transform on the CPU (``-g cpu``);
-* ``spz4``: S&P++ aimed at a quarter of SPZ's bytes (``--target-size``), the issue's bar.
+* ``spz4``: S&P++ aimed at a quarter of SPZ's bytes (``--target-size``), the issue's bar;
+* ``sp-target``: S&P++ aimed at each ``--spz-fractions`` of SPZ's bytes (``--target-size``): the
+  curve a user walks by asking for a size, where ``sp`` walks the patch downsample.
 
 Every encode runs as its own ``spcodec encode`` process under ``/usr/bin/time`` (peak memory
 per run) with ``--stats`` (time per stage). Rows are appended to a JSON file as they finish, so an
@@ -28,7 +30,8 @@ interrupted sweep continues where it stopped; ``--plot`` draws one PSNR-vs-size 
 (log size axis) into ``docs/results/``. matplotlib is needed for the plots only (install by hand).
 
     python bench/bench_rd.py --json rd.json [--scenes fourth_st donut guitar kacytran lego]
-        [--methods sp pr noretrain spz sog spz4] [--factors 2 4 8 16] [--iterations 3000]
+        [--methods sp pr noretrain spz sog spz4 sp-target] [--factors 2 4 8 16]
+        [--spz-fractions 0.0625 0.125 0.25 0.5] [--iterations 3000]
         [--lego-model /path/lego.ply --lego-downscale 4] [--no-viewer]
     python bench/bench_rd.py --json rd.json --plot docs/results
 """
@@ -53,7 +56,9 @@ from bench_quality import SCENES, spz_round_trip  # bench/ is on sys.path
 from scenes import data_dir
 
 LEGO_DATASET = "nerf_synthetic_lego"
-METHODS = ("sp", "pr", "noretrain", "spz", "sog", "spz4")
+METHODS = ("sp", "pr", "noretrain", "spz", "sog", "spz4", "sp-target")
+SIZED = ("spz4", "sp-target")
+"""Methods aimed at a share of SPZ's bytes: they need the scene's ``spz`` row first."""
 LABELS = {"sp": "S&P++ (retrained)", "pr": "Prune&Retrain", "noretrain": "no-retrain presets",
           "spz": "SPZ", "sog": "SOG", "spz4": "S&P++ at SPZ/4", "original": "original",
           # rows added by hand from single encodes (docs/RESULTS.md says which)
@@ -123,7 +128,7 @@ def encode_args(method: str, param, setup: dict, args) -> list[str]:
     view = [f"--up={setup['up']}"] + (["--antialiased"] if setup["antialiased"] else [])
     if method == "noretrain":
         return ["--no-retrain", "--preset", param, *view]
-    size = ["--target-size", str(param)] if method == "spz4" else \
+    size = ["--target-size", str(param)] if method in SIZED else \
         ["--patch-downsample", str(param)]
     common = [*size, "--iterations", str(args.iterations), "--threads", str(args.threads),
               "--device", "cpu", *view]
@@ -173,7 +178,7 @@ def sweep(args) -> None:
                         **judge(original, original, setup), gaussians=len(original)))
         points = {"sp": args.factors, "pr": args.factors,
                   "noretrain": ["lowrate", "balanced", "highrate"], "spz": ["-"], "sog": ["-"],
-                  "spz4": ["-"]}
+                  "spz4": ["-"], "sp-target": args.spz_fractions}
         for method in args.methods:
             for param in points[method]:
                 if (name, method, str(param)) in done:
@@ -192,13 +197,14 @@ def sweep(args) -> None:
                         done.add((name, method, str(param)))
                         continue
                     target = param
-                    if method == "spz4":
+                    if method in SIZED:
                         spz = next((r for r in rows if r["scene"] == name and r["method"] == "spz"),
                                    None)
                         if spz is None:
-                            raise SystemExit(f"{name}: spz4 needs the spz row: run --methods spz "
-                                             "spz4")
-                        target = spz["bytes"] // 4
+                            raise SystemExit(f"{name}: {method} needs the spz row: run --methods "
+                                             f"spz {method}")
+                        target = spz["bytes"] // 4 if method == "spz4" else \
+                            int(spz["bytes"] * param)
                     start = time.perf_counter()
                     out, stats, peak = run_encode(setup["ply"],
                                                   encode_args(method, target, setup, args), work)
@@ -274,6 +280,8 @@ def main() -> None:
     ap.add_argument("--scenes", nargs="+", default=["fourth_st", "donut", "guitar", "kacytran"])
     ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     ap.add_argument("--factors", nargs="+", type=float, default=[2, 4, 8, 16])
+    ap.add_argument("--spz-fractions", nargs="+", type=float, default=[1 / 16, 1 / 8, 1 / 4, 1 / 2],
+                    help="sp-target: the shares of SPZ's bytes to aim at")
     ap.add_argument("--iterations", type=int, default=3000)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--no-viewer", action="store_true", help="skip the PlayCanvas columns")

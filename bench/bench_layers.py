@@ -42,6 +42,16 @@ SHARE_TARGET, DB_TARGET, FIRST_SHARE, FIRST_DB = 0.30, 3.0, 0.10, 10.0
 LABELS = ("plain", "nested")
 
 
+def cloud_framings(cloud: spcodec.GaussianCloud, original: Path, up: str, antialiased: bool,
+                   cache: Path) -> dict[str, float]:
+    """Viewer PSNR of ``cloud`` against ``original`` at both framings (through a temporary PLY,
+    which is what the viewer loads)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        ply = Path(tmp) / "prefix.ply"
+        spcodec.write_ply(ply, cloud)
+        return viewer_yardstick.two_framings(original, ply, cache, up, antialiased)
+
+
 def prefixes(data: bytes, original: Path, up: str, antialiased: bool, cache: Path) -> list[dict]:
     """Bytes, share, Gaussians and viewer PSNR at both framings of every prefix that ends at a
     non-empty layer."""
@@ -51,10 +61,8 @@ def prefixes(data: bytes, original: Path, up: str, antialiased: bool, cache: Pat
         gaussians += layer["gaussians"]
         if not gaussians or layer["gaussians"] == 0:
             continue
-        with tempfile.TemporaryDirectory() as tmp:
-            ply = Path(tmp) / "prefix.ply"
-            spcodec.write_ply(ply, spcodec.decode(data, max_layer=layer["index"]))
-            psnr = viewer_yardstick.two_framings(original, ply, cache, up, antialiased)
+        psnr = cloud_framings(spcodec.decode(data, max_layer=layer["index"]), original, up,
+                              antialiased, cache)
         rows.append({"layer": layer["index"], "bytes": layer["end_offset"],
                      "share": layer["end_offset"] / len(data), "gaussians": gaussians,
                      "orbit": round(psnr["orbit"], 3), "close": round(psnr["close"], 3)})

@@ -11,9 +11,10 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from bench_layers import cloud_framings  # noqa: E402
+
 import spcodec  # noqa: E402
 
-import viewer_yardstick  # noqa: E402
 from bench_quality import SCENES  # noqa: E402
 from scenes import data_dir  # noqa: E402
 
@@ -30,10 +31,7 @@ for layer in info["layers"]:
     if layer["gaussians"] == 0:
         continue
     cloud = spcodec.GaussianCloud.concat([preview, spcodec.decode(data, max_layer=layer["index"])])
-    with tempfile.TemporaryDirectory() as tmp:
-        ply = Path(tmp) / "prefix.ply"
-        spcodec.write_ply(ply, cloud)
-        psnr = viewer_yardstick.two_framings(data_dir() / rel, ply, CACHE, up, aa)
+    psnr = cloud_framings(cloud, data_dir() / rel, up, aa, CACHE)
     b = pbytes + layer["end_offset"]
     row = {"layer": layer["index"], "bytes": b, "share": b / (pbytes + len(data)),
            "gaussians": len(cloud), "orbit": psnr["orbit"], "close": psnr["close"]}

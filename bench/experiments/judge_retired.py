@@ -12,9 +12,10 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from bench_layers import cloud_framings  # noqa: E402
+
 import spcodec  # noqa: E402
 
-import viewer_yardstick  # noqa: E402
 from bench_quality import SCENES  # noqa: E402
 from scenes import data_dir  # noqa: E402
 
@@ -40,10 +41,7 @@ for k in range(1, len(kinds) - M + 1):
             [file_index[f"L{j}"] for j in range(M + 1, k + 1)]
     last = max(members)
     cloud = spcodec.GaussianCloud.concat([clouds[i] for i in members if len(clouds[i])])
-    with tempfile.TemporaryDirectory() as tmp:
-        ply = Path(tmp) / "prefix.ply"
-        spcodec.write_ply(ply, cloud)
-        psnr = viewer_yardstick.two_framings(data_dir() / rel, ply, CACHE, up, aa)
+    psnr = cloud_framings(cloud, data_dir() / rel, up, aa, CACHE)
     row = {"prefix": k, "layers": members, "bytes": ends[last], "share": ends[last] / len(data),
            "gaussians": len(cloud), "orbit": psnr["orbit"], "close": psnr["close"]}
     prefixes.append(row)

@@ -13,8 +13,8 @@ import os
 import sys
 
 import spcodec
-from spcodec.cloud import GaussianCloud  # noqa: E402
-from spcodec.encoder import stages  # noqa: E402
+from spcodec.cloud import GaussianCloud
+from spcodec.encoder import stages
 
 preview = spcodec.decode(open(os.environ["PREVIEW"], "rb").read())
 _decoded = stages.SceneWriter.decoded_sketch

@@ -23,12 +23,12 @@ import sys
 import numpy as np
 import torch
 
-from spcodec.encoder import nested as NE  # noqa: E402
-from spcodec.encoder import prune_retrain as PR  # noqa: E402
-from spcodec.encoder import quantaware as QA  # noqa: E402
-from spcodec.encoder import retrain as RT  # noqa: E402
-from spcodec.imaging.render import GaussianParams  # noqa: E402
-from spcodec.imaging.training import optim as OP  # noqa: E402
+from spcodec.encoder import nested as NE
+from spcodec.encoder import prune_retrain as PR
+from spcodec.encoder import quantaware as QA
+from spcodec.encoder import retrain as RT
+from spcodec.imaging.render import GaussianParams
+from spcodec.imaging.training import optim as OP
 
 M = int(os.environ.get("RETIRE_AFTER", 3))
 HARDEN = float(os.environ.get("HARDEN", 0.5))

@@ -6,14 +6,19 @@ imports them, so declaring stays below collecting and nothing imports back.
 
 from __future__ import annotations
 
-from . import invalid_cases, stream_cases, valid_cases  # importing them declares their cases
+from . import (  # importing them declares their cases
+    invalid_cases,
+    preview_cases,
+    stream_cases,
+    valid_cases,
+)
 from .declare import CASES, Case
 
 __all__ = ["Case", "all_cases"]
 
 
-MODULES = (valid_cases, invalid_cases, stream_cases)
-"""The case modules in the suite's order: spec 1.0.1's cases after those of 1.0."""
+MODULES = (valid_cases, invalid_cases, stream_cases, preview_cases)
+"""The case modules in the suite's order: spec 1.0.1's cases after those of 1.0, then 1.1's."""
 
 
 def all_cases() -> list[Case]:

@@ -136,6 +136,10 @@ def print_summary(stats: dict, stream: TextIO | None = None) -> None:
     for name, length in stats["sections"].items():
         if length:
             print_(f"  {name:<20} {length:>12,} bytes")
+    preview = stats.get("preview")
+    if preview:
+        print_(f"  preview: {preview['gaussians']:,} Gaussians in {preview['bytes']:,} bytes, "
+               f"shown until layer {preview['takeover_layer']} arrives")
     err = stats.get("sketch_error")
     if err:
         print_("  decoded sketch vs original (mean / p95):")

@@ -20,10 +20,11 @@ from .ply import read_ply, write_ply
 
 __version__ = "0.1.0"
 
-from .decoder import StreamDecoder, decode, decode_layers, inspect  # noqa: E402  (needs the above)
+# needs the above:
+from .decoder import StreamDecoder, decode, decode_layers, decode_preview, inspect  # noqa: E402
 
 __all__ = [
     "ChecksumError", "FormatError", "GaussianCloud", "LimitError", "Limits", "SpcodecError",
     "StreamDecoder", "TruncatedError", "UnsupportedError", "UsageError", "__version__", "decode",
-    "decode_layers", "inspect", "read_ply", "write_ply",
+    "decode_layers", "decode_preview", "inspect", "read_ply", "write_ply",
 ]

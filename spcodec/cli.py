@@ -118,6 +118,9 @@ def _add_decode(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-layer", type=MAX_LAYER, default=None, metavar="K",
                    help="decode layers 0..K only (0 = the sketch layer alone); %(type)s "
                    "(default: every layer)")
+    p.add_argument("--preview", action="store_true",
+                   help="decode the file's preview (spec 7.4), the small scene a viewer shows "
+                   "first, instead of the scene (default: off)")
 
 
 @command("decode", "decode an .spc file into a 3DGS PLY or a glTF (.glb)", _add_decode)
@@ -136,19 +139,36 @@ def cmd_decode(args: argparse.Namespace) -> int:
                          f"standard output) or a binary glTF (.glb), not {suffix}")
     refuse_same_file(args.output, args.input)
     check_writable(args.output)
+    if args.preview and args.max_layer is not None:
+        raise UsageError("--max-layer chooses layers of the scene, --preview decodes the "
+                         "preview instead: give one of them")
     start = time.perf_counter()
-    result = decode_layers(args.input, max_layer=args.max_layer)
+    if args.preview:
+        cloud, counts = _decode_preview(args.input)
+    else:
+        result = decode_layers(args.input, max_layer=args.max_layer)
+        cloud = result.cloud
+        counts = ", ".join(f"L{layer.index} {len(layer.cloud)}" for layer in result.layers)
     elapsed = time.perf_counter() - start
-    cloud = result.cloud
     if suffix == ".glb":  # upright in glTF's +Y, from the up axis the file stores
         write_glb(args.output, cloud, up=(inspect(args.input).metadata or {}).get("up"))
     else:
         write_ply(args.output, cloud)
-    counts = ", ".join(f"L{layer.index} {len(layer.cloud)}" for layer in result.layers)
     print(f"decoded {len(cloud)} Gaussians ({counts}) in {elapsed * 1000:.0f} ms -> "
           f"{'standard output' if is_stdout(args.output) else args.output}",
           file=report_stream(args.output))
     return EXIT_OK
+
+
+def _decode_preview(path: str):
+    """The preview's Gaussians and a note for the report line; a file without one is the
+    user's mistake (a one-line error), not an empty output."""
+    from .decoder import decode_preview
+
+    preview = decode_preview(path)
+    if preview is None:
+        raise UsageError(f"{path} has no preview (spec 7.4); decode it without --preview")
+    return preview.cloud, f"the preview, shown until layer {preview.takeover_layer} arrives"
 
 
 # ---------------------------------------------------------------------------------- embed
@@ -209,21 +229,29 @@ def cmd_info(args: argparse.Namespace) -> int:
     for s in doc["sections"]:
         print(f"  #{s['index']:<3} L{s['layer']:<3} {s['type']:<20} {s['codec']:<5} "
               f"offset {s['offset']:>10}  {s['length']:>10} bytes  (raw {s['raw_length']})")
+    if "preview" in doc:
+        print(_preview_line(doc["preview"]))
     if doc["metadata"]:
         print("metadata: " + json.dumps(doc["metadata"], sort_keys=True)[:200])
     return EXIT_OK
 
 
+def _preview_line(preview: dict) -> str:
+    """``info``'s line on the preview (spec 7.4)."""
+    if "error" in preview:
+        return f"preview: does not decode ({preview['error']}); viewers show the layers alone"
+    if not preview.get("complete", True):
+        return f"preview: INCOMPLETE (needs the bytes up to {preview['end_offset']})"
+    return (f"preview: {preview['gaussians']} Gaussians in {preview['bytes']} bytes, complete at "
+            f"byte {preview['end_offset']}; shown until layer {preview['takeover_layer']} arrives")
+
+
 def _prefix_scores(metadata) -> dict[int, float]:
     """Layer -> the PSNR the encoder measured for the prefix ending there (metadata
-    ``stats.prefix_psnr``). Metadata is untrusted: anything malformed is left out."""
-    stats = metadata.get("stats") if isinstance(metadata, dict) else None
-    table = stats.get("prefix_psnr") if isinstance(stats, dict) else None
-    if not isinstance(table, list):
-        return {}
-    return {entry["layer"]: float(entry["psnr"]) for entry in table
-            if isinstance(entry, dict) and type(entry.get("layer")) is int
-            and type(entry.get("psnr")) in (int, float) and math.isfinite(entry["psnr"])}
+    ``stats.prefix_psnr``)."""
+    from .preview import recorded_prefix_psnr
+
+    return {entry["layer"]: entry["psnr"] for entry in recorded_prefix_psnr(metadata)}
 
 
 def _partial_file_note(doc: dict) -> str:
@@ -235,6 +263,41 @@ def _partial_file_note(doc: dict) -> str:
         return f"PREFIX: the data ends at a layer boundary, {where}; {whole} and decode"
     hint = f" (decode them with --max-layer {k - 1})" if k else ""
     return f"TRUNCATED: the data ends inside layer {k}, {where}; {whole}{hint}"
+
+
+# ------------------------------------------------------------------------- attach-preview
+def _add_attach_preview(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scene", help="the .spc file to add the preview to")
+    p.add_argument("preview", help="a small whole .spc file of the same scene (encode it with "
+                   "--target-size for a tenth of the bytes, say)")
+    p.add_argument("-o", "--output", required=True, help="the .spc file to write")
+    p.add_argument("--takeover", type=MAX_LAYER, default=None, metavar="K",
+                   help="show the preview until layers 0..K have arrived: %(type)s (default: the "
+                   "first layer whose prefix scores at least the preview on the encoder's "
+                   "training views, as both files' metadata record them; else the last layer)")
+
+
+@command("attach-preview", "embed a small .spc in another as its preview (spec 7.4), which "
+         "streaming viewers show first", _add_attach_preview)
+def cmd_attach_preview(args: argparse.Namespace) -> int:
+    from .decoder import inspect
+    from .fileio import atomic_write, check_writable, refuse_same_file
+    from .preview import attach_preview, choose_takeover, recorded_prefix_psnr
+
+    refuse_same_file(args.output, args.scene, args.preview)
+    check_writable(args.output)
+    scene, preview = Path(args.scene).read_bytes(), Path(args.preview).read_bytes()
+    takeover = args.takeover
+    if takeover is None:
+        scores = recorded_prefix_psnr(inspect(preview).metadata)
+        info = inspect(scene)
+        takeover = choose_takeover(recorded_prefix_psnr(info.metadata), len(info.header.layers),
+                                   scores[-1]["psnr"] if scores else None)
+    data = attach_preview(scene, preview, takeover)
+    atomic_write(args.output, data)
+    print(f"{args.output}: {len(data):,} bytes, the preview ({len(preview):,} bytes) shown "
+          f"until layer {takeover} arrives")
+    return EXIT_OK
 
 
 # ---------------------------------------------------------------------------------- serve
@@ -381,6 +444,12 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
                       help="the smallest file whose close-up (eval's views at half the distance, "
                       "800x800) reaches DB against the input: %(type)s; sets how many patch "
                       "Gaussians survive (default: none)")
+    size.add_argument("--preview-size", metavar="SIZE",
+                      help="embed a preview of at most SIZE bytes (spec 7.4): the scene encoded "
+                      "a second time for that size, which viewers show until the file's own "
+                      "layers beat it; with --target-size the whole file stays within the "
+                      "target. Pays on scenes whose quality falls slowly with size "
+                      "(docs/RESULTS.md 15.8); doubles the encode time (default: none)")
     size.add_argument("--patch-downsample", type=Bounded(float, 1), metavar="N",
                       help="keep 1/N of the patch Gaussians: %(type)s (default: set by --preset: "
                       "lowrate 8, balanced 4, highrate 2)")
@@ -451,7 +520,9 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
 @command("encode", "encode a 3DGS PLY into an .spc bitstream", _add_encode)
 def cmd_encode(args: argparse.Namespace) -> int:
     from .encoder.pipeline import encode
+    from .encoder.preview import encode_with_preview
     from .encoder.progress import StageReporter, print_summary
+    from .encoder.ratecontrol import parse_size
     from .fileio import atomic_write, check_writable, refuse_same_file
     from .ply import read_ply
 
@@ -461,14 +532,19 @@ def cmd_encode(args: argparse.Namespace) -> int:
         refuse_same_file(args.stats, args.input, args.output)
         check_writable(args.stats)
     config = encode_config(args)
+    preview_size = parse_size(args.preview_size) if args.preview_size is not None else None
     control = run_control(args, config.retrain is not None)
     cloud = read_ply(args.input)
     reporter = StageReporter(enabled=not args.quiet)
     with _stop_on_ctrl_c(control):
         try:
-            result = encode(cloud, config, progress=reporter.stage,
-                            source_name=Path(args.input).name, dataset=args.dataset,
-                            control=control)
+            if preview_size is None:
+                result = encode(cloud, config, progress=reporter.stage,
+                                source_name=Path(args.input).name, dataset=args.dataset,
+                                control=control)
+            else:
+                result = encode_with_preview(cloud, config, preview_size, reporter.stage,
+                                             Path(args.input).name, args.dataset, control)
         except (Interrupted, KeyboardInterrupt):
             reporter.interrupt()
             raise

@@ -40,6 +40,10 @@ GZIP_MAGIC = b"\x1f\x8b"
 
 VERSION_MAJOR = 1
 VERSION_MINOR = 0
+"""The minor version a file gets unless it uses a later feature ([R-92]: the oldest that
+expresses it)."""
+PREVIEW_MINOR = 1
+"""The minor version that added the ``PREVIEW`` section (spec 7.4): files that carry one say 1.1."""
 
 # spec 3.1 - fixed header, 48 bytes
 FixedHeader = Struct(
@@ -105,6 +109,7 @@ class SectionType(enum.IntEnum):
     """spec 4.1 - section type ids."""
 
     METADATA = 0x0001
+    PREVIEW = 0x0002
     SKETCH_CLUSTERS = 0x0010
     SKETCH_POSITIONS = 0x0011
     SKETCH_COEFFICIENTS = 0x0012
@@ -182,6 +187,16 @@ PatchPositionsPayload = Struct(
 
 # spec 7.3 - patch attributes: nothing but uint8 index columns
 PatchAttributesPayload = Struct("indices" / GreedyBytes)
+
+
+# spec 7.4 - the preview (1.1): a whole small file embedded in an optional section of layer 0
+PreviewPayload = Struct(
+    "takeover_layer" / Int16ul,
+    "reserved" / Int16ul,
+    "file" / GreedyBytes,
+)
+PREVIEW_PREFIX_SIZE = 4
+"""Bytes of the preview payload before the embedded file."""
 
 
 # --------------------------------------------------------------------------------- helpers

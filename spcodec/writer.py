@@ -23,6 +23,7 @@ from .container import (
     FIXED_HEADER_SIZE,
     LAYER_DTYPE,
     MAGIC,
+    PREVIEW_MINOR,
     SECTION_DTYPE,
     SECTION_FLAG_REQUIRED,
     VERSION_MAJOR,
@@ -30,6 +31,7 @@ from .container import (
     Codec,
     FixedHeader,
     LayerKind,
+    PreviewPayload,
     SectionType,
     header_size,
 )
@@ -56,6 +58,20 @@ class PatchLayer:
         return len(self.positions)
 
 
+@dataclass(frozen=True)
+class Preview:
+    """A small stand-alone file shown until layer ``takeover_layer`` has arrived (spec 7.4)."""
+
+    file: bytes
+    """A whole spcodec file without gzip wrapper and without a preview of its own."""
+    takeover_layer: int
+
+    def payload(self) -> bytes:
+        """The ``PREVIEW`` section's raw bytes."""
+        return PreviewPayload.build(dict(takeover_layer=self.takeover_layer, reserved=0,
+                                         file=self.file))
+
+
 @dataclass
 class EncodedScene:
     """Everything a file holds, already encoded: the writer's input."""
@@ -65,6 +81,7 @@ class EncodedScene:
     codebooks: list[Codebook] = field(default_factory=list)
     patch_layers: list[PatchLayer] = field(default_factory=list)
     metadata: dict | None = None
+    preview: Preview | None = None
 
     @property
     def sketch_count(self) -> int:
@@ -114,7 +131,8 @@ def assemble(sections: list[SectionSpec], layers: list[LayerSpec], sh_degree: in
     """Lay out header, layer table, TOC and sections; compute offsets and CRCs ([R-4]..[R-12]).
 
     With ``store_when_larger``, a section that its codec would make larger is stored uncompressed
-    (codec none) instead.
+    (codec none) instead. The version is 1.0, or 1.1 when a ``PREVIEW`` section needs it ([R-92]:
+    the oldest minor version that expresses the file).
     """
     start = header_size(len(layers), len(sections))
     toc = np.zeros(len(sections), dtype=SECTION_DTYPE)
@@ -139,7 +157,9 @@ def assemble(sections: list[SectionSpec], layers: list[LayerSpec], sh_degree: in
     for i, layer in enumerate(layers):
         end = layer.end_offset if layer.end_offset is not None else layer_ends[i]
         table[i] = (int(layer.kind), b"\0\0\0", layer.gaussian_count, end)
-    header = dict(magic=MAGIC, version_major=VERSION_MAJOR, version_minor=VERSION_MINOR, flags=0,
+    minor = PREVIEW_MINOR if any(sec.type == SectionType.PREVIEW for sec in sections) \
+        else VERSION_MINOR
+    header = dict(magic=MAGIC, version_major=VERSION_MAJOR, version_minor=minor, flags=0,
                   header_size=start, layer_count=len(layers), section_count=len(sections),
                   sh_degree=sh_degree, reserved=b"\0" * 7,
                   gaussian_count=sum(layer.gaussian_count for layer in layers), file_size=offset)
@@ -159,6 +179,9 @@ def scene_sections(scene: EncodedScene, codec: Codec = Codec.ZLIB) -> tuple[list
         meta = json.dumps(scene.metadata, sort_keys=True, separators=(",", ":"),
                           ensure_ascii=False).encode("utf-8")
         sections.append(SectionSpec(SectionType.METADATA, 0, meta, codec, required=False))
+    if scene.preview is not None:  # before the sketch, so that it arrives first (spec 7.4)
+        sections.append(SectionSpec(SectionType.PREVIEW, 0, scene.preview.payload(), codec,
+                                    required=False))
     sections += [
         SectionSpec(SectionType.SKETCH_CLUSTERS, 0, table, codec),
         SectionSpec(SectionType.SKETCH_POSITIONS, 0, draco, Codec.NONE),

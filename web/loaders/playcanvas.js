@@ -106,6 +106,12 @@ export function concatClouds(clouds) {
  * arrives, so the first picture comes after a few percent of the bytes. PlayCanvas sorts the
  * layers' splats together.
  *
+ * A file with a preview (spec 7.4) shows it first, in a child of its own, as soon as its bytes are
+ * in; the layers that arrive meanwhile are added disabled, and when the preview's takeover layer
+ * (or the last layer asked for, if that comes first) arrives they are enabled and the preview is
+ * destroyed in the same step, so the next frame drawn holds the scene ([R-104]). A preview that
+ * does not decode is reported to `onPreviewError` and the layers show as without one.
+ *
  * @param {any} app  the PlayCanvas application
  * @param {any} pc   the PlayCanvas module the app runs on
  * @param {string} url  an .spc, or a .glb written by `spcodec embed`
@@ -113,35 +119,159 @@ export function concatClouds(clouds) {
  * @param {any} [options.parent]  where the scene's entity goes (default: app.root)
  * @param {number} [options.maxLayer]  stop after this layer
  * @param {string} [options.up]  the up axis where the file does not store one (default -y)
- * @param {(layer: object) => void} [options.onLayer]  after each layer's entity is added
+ * @param {(layer: object) => void} [options.onLayer]  after each layer's entity is added; `shown`
+ *   is false for a layer held back behind the preview
  * @param {(loaded: number, total: number|null) => void} [options.onProgress]
  * @param {(info: object) => void} [options.onInfo]  the `spcodec info --json` document, first
  * @param {typeof fetch} [options.fetchImpl]
  * @param {(event: object) => void} [options.onRequest]
+ * @param {boolean} [options.preview]  show the file's preview (default true)
+ * @param {(preview: object) => void} [options.onPreview]  after the preview's entity is added,
+ *   with `showFrom`: the layer whose arrival drops it
+ * @param {(drop: {layer: number, held: number[]}) => void} [options.onPreviewDropped]  the
+ *   preview is gone and layers 0..layer are enabled (`held`: those that waited), before that
+ *   layer's onLayer
+ * @param {(error: unknown) => void} [options.onPreviewError]
  * @returns {Promise<{entity: any, info: object|null, layers: number, bytes: number,
- *   mode: string, fileSize: number|null}>}
+ *   mode: string, fileSize: number|null, previewError: unknown}>}
  */
 export async function loadSpc(app, pc, url, { parent = app.root, maxLayer = Infinity, up = null,
   onLayer = () => {}, onProgress = () => {}, onInfo = () => {}, fetchImpl = fetch,
-  onRequest = () => {} } = {}) {
+  onRequest = () => {}, preview = true, onPreview = () => {}, onPreviewDropped = () => {},
+  onPreviewError = () => {} } = {}) {
   const entity = new pc.Entity(`spc ${url}`);
   parent.addChild(entity);
+  const stand = new PreviewStand();
   const result = await streamLayers(url, {
-    maxLayer, up, onProgress, onInfo, fetchImpl, onRequest,
+    maxLayer, up, onProgress, onInfo, fetchImpl, onRequest, preview, onPreviewError,
+    onPreview: (p) => {
+      entity.setLocalRotation(new pc.Quat(...p.rotation));
+      const child = p.cloud.count > 0 ? gsplatEntity(app, pc, 'preview', p.cloud) : null;
+      if (child) entity.addChild(child);
+      const showFrom = stand.open(child, p.takeoverLayer, Math.min(maxLayer, p.layerCount - 1));
+      onPreview({ ...p, entity: child, showFrom });
+    },
     onLayer: (layer) => {
       entity.setLocalRotation(new pc.Quat(...layer.rotation));
-      let child = null;
-      if (layer.cloud.count > 0) {
-        child = new pc.Entity(`layer ${layer.index}`);
-        child.addComponent('gsplat', {
-          resource: new pc.GSplatResource(app.graphicsDevice, toGSplatData(pc, layer.cloud)) });
-        entity.addChild(child);
+      const child = layer.cloud.count > 0 ? gsplatEntity(app, pc, `layer ${layer.index}`, layer.cloud) : null;
+      if (child) entity.addChild(child);
+      const shown = stand.place(child, layer.index);
+      if (shown && stand.dropped === layer.index) {
+        destroyOnceReplaced(app, stand.retired);
+        onPreviewDropped({ layer: layer.index, held: stand.heldIndices });
       }
-      onLayer({ ...layer, entity: child });
+      onLayer({ ...layer, entity: child, shown });
     },
   });
   return { entity, info: result.info, layers: result.layers, bytes: result.bytes,
-    mode: result.mode, fileSize: result.fileSize };
+    mode: result.mode, fileSize: result.fileSize, previewError: result.previewError };
+}
+
+/**
+ * An entity drawing `cloud` with a GSplat component of its own.
+ * @param {any} app
+ * @param {any} pc
+ * @param {string} name
+ * @param {import('../src/decoder.js').Cloud} cloud
+ */
+function gsplatEntity(app, pc, name, cloud) {
+  const child = new pc.Entity(name);
+  child.addComponent('gsplat', {
+    resource: new pc.GSplatResource(app.graphicsDevice, toGSplatData(pc, cloud)) });
+  return child;
+}
+
+/**
+ * Destroy a disabled GSplat entity, and the resource it drew, once PlayCanvas has drawn a frame
+ * without it. Destroying it in the step that disables it frees its placement while the sorted
+ * state still drawn (until the new one is sorted) holds it: a blank frame (PlayCanvas 2.23; the
+ * viewer's browser test sees it). The resource is not the component's to free: it is freed here
+ * (PlayCanvas defers that while a state still counts it).
+ * @param {any} app
+ * @param {any} entity  null: nothing to do
+ */
+function destroyOnceReplaced(app, entity) {
+  const system = app.systems?.gsplat;
+  const destroy = () => {
+    const resource = entity.gsplat?.resource;
+    entity.destroy();
+    resource?.destroy();
+  };
+  if (!entity) return;
+  if (!system) {
+    destroy();
+    return;
+  }
+  let frames = 0;
+  const counted = () => { frames++; };
+  const ready = (_camera, _layer, sorted, loading) => {
+    if (!sorted || loading || frames < 1) return;
+    app.off('frameend', counted);
+    system.off('frame:ready', ready);
+    destroy();
+  };
+  app.on('frameend', counted);
+  system.on('frame:ready', ready);
+}
+
+/**
+ * What is on screen while a preview stands in for the scene ([R-104]): the preview's entity until
+ * layer `showFrom` arrives; the layers before it wait, disabled. The swap is one step (enable the
+ * layers, disable the preview, no frame between), so no frame is without a picture; the preview's
+ * entity is then `retired`, for the caller to destroy once a frame without it is drawn.
+ */
+export class PreviewStand {
+  constructor() {
+    /** @type {any} the preview's entity (null for an empty preview) */
+    this.entity = null;
+    /** the layer whose arrival drops the preview; -1: no preview (any more) */
+    this.showFrom = -1;
+    /** @type {{index: number, entity: any}[]} layers waiting behind the preview */
+    this.held = [];
+    /** @type {number[]} the layers that waited, once the preview is dropped */
+    this.heldIndices = [];
+    /** the layer at which the preview was dropped, or -1 */
+    this.dropped = -1;
+    /** @type {any} the preview's entity once dropped (disabled), until the caller destroys it */
+    this.retired = null;
+  }
+
+  /**
+   * Show the preview until layer `takeover`, or `last` (the last layer that will come) if sooner.
+   * @param {any} entity
+   * @param {number} takeover
+   * @param {number} last
+   * @returns {number} the layer that will drop it
+   */
+  open(entity, takeover, last) {
+    this.entity = entity;
+    this.showFrom = Math.min(takeover, last);
+    return this.showFrom;
+  }
+
+  /**
+   * A layer's entity has arrived (null for an empty layer): hold it back behind the preview, or
+   * swap the preview for it and the layers held. Returns whether the layer is on screen now.
+   * @param {any} entity
+   * @param {number} index
+   */
+  place(entity, index) {
+    if (this.showFrom < 0) return true;
+    if (index < this.showFrom) {
+      if (entity) entity.enabled = false;
+      this.held.push({ index, entity });
+      return false;
+    }
+    for (const layer of this.held) if (layer.entity) layer.entity.enabled = true;
+    if (this.entity) this.entity.enabled = false;
+    this.retired = this.entity;
+    this.heldIndices = this.held.map((layer) => layer.index);
+    this.held = [];
+    this.entity = null;
+    this.showFrom = -1;
+    this.dropped = index;
+    return true;
+  }
 }
 
 /**
@@ -178,6 +308,7 @@ export class SpcParser {
     try {
       const result = await streamLayers(typeof url === 'string' ? url : url.load, {
         up: this.up, fetchImpl: this.fetchImpl ?? fetch,
+        preview: false,  // one resource of every layer: nothing is shown before it, no preview
         onProgress: (loaded, total) => asset?.fire('progress', loaded, total ?? 0),
         onLayer: (layer) => {
           clouds.push(layer.cloud);

@@ -224,7 +224,7 @@ class LayerDecoder {
  * @param {Uint8Array} data
  * @param {import('./header.js').Section} sec
  */
-function storedBytes(data, sec) {
+export function storedBytes(data, sec) {
   if (sec.end > data.length) fail('truncated', `section ${sec.index} (${sec.typeName}) is cut short`);
   const stored = data.subarray(sec.offset, sec.end);
   if (crc32(stored) !== sec.crc32) fail('section-crc', `section ${sec.index} (${sec.typeName}) CRC-32 mismatch`);
@@ -265,7 +265,7 @@ function checkMaxLayer(maxLayer) {
  * @param {ArrayBuffer | ArrayBufferView} bytes
  * @returns {Uint8Array}
  */
-function asBytes(bytes) {
+export function asBytes(bytes) {
   if (bytes instanceof Uint8Array) return bytes;
   if (ArrayBuffer.isView(bytes)) return new Uint8Array(bytes.buffer, bytes.byteOffset, bytes.byteLength);
   if (bytes instanceof ArrayBuffer) return new Uint8Array(bytes);
@@ -324,7 +324,7 @@ function wrapperOverflow(cap, limits) {
  * @param {import('./limits.js').Limits} limits
  * @returns {Uint8Array}
  */
-function unwrap(data, limits) {
+export function unwrap(data, limits) {
   if (!isGzip(data)) {
     if (data.length === 1 && data[0] === 0x1F) fail('truncated', 'the data ends inside the gzip header');
     return data;

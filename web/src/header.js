@@ -14,9 +14,14 @@ export const SECTION_ENTRY_SIZE = 40;
 export const VERSION_MAJOR = 1;
 const SECTION_FLAG_REQUIRED = 1;
 
-/** Section type ids (section 4.1). */
+/**
+ * Section type ids (section 4.1). `PREVIEW` (1.1) is named here, for inspect and messages, but it
+ * is not in {@link KNOWN_SECTIONS}: decoding the scene treats it as an optional section of unknown
+ * type ([R-102]); only src/preview.js reads it.
+ */
 export const SectionType = Object.freeze({
   METADATA: 0x0001,
+  PREVIEW: 0x0002,
   SKETCH_CLUSTERS: 0x0010,
   SKETCH_POSITIONS: 0x0011,
   SKETCH_COEFFICIENTS: 0x0012,

@@ -8,4 +8,5 @@ export { DEFAULT_LIMITS } from './limits.js';
 export { configureDraco } from './draco.js';
 export { plyBytes } from './ply.js';
 export { streamLayers } from './stream.js';
+export { decodePreview, findPreview } from './preview.js';
 export { upRotation, rotatePositions } from './orientation.js';

@@ -73,14 +73,14 @@ export async function streamSpc(url, { sink, planLayers, maxLayer = Infinity, fe
       head = concat(head, more);
     }
   }
-  await sink(head);
-  let offset = head.length;
   let layers = null;
-  try {
+  try {  // before the bytes go on: what the header says (the up axis) applies to layers in them
     layers = planLayers(head).layers;
   } catch {
     // Too short for a header block, or not an .spc: the decoder says why as the rest arrives.
   }
+  await sink(head);
+  let offset = head.length;
   if (!layers || layers.some((layer) => layer.endOffset == null)) {
     // No layer ends (a gzip wrapper without recorded layer offsets, or bytes the decoder will
     // reject): read the rest as one stream.

@@ -10,7 +10,7 @@ import { dirname, join } from 'node:path';
 import { test } from 'node:test';
 import { fileURLToPath } from 'node:url';
 
-import { decode } from '../src/index.js';
+import { decode, decodePreview } from '../src/index.js';
 import { plyBytes } from '../src/ply.js';
 import { FIXTURES, fixture } from './helpers.js';
 
@@ -74,4 +74,19 @@ test('usage and file-system errors: one line, no output', () => {
   assert.equal(noFolder.status, 1);
   assert.equal(noFolder.stderr.trim().split('\n').length, 1);
   assert.deepEqual(readdirSync(dir), []);
+});
+
+test('--preview writes the preview\'s PLY, or says the file has none', async () => {
+  const dir = scratch();
+  const out = join(dir, 'preview.ply');
+  const result = run(join(FIXTURES, 'sh1-preview.spc'), out, '--preview');
+  assert.equal(result.status, 0, result.stderr);
+  assert.deepEqual(new Uint8Array(readFileSync(out)), plyBytes(await decodePreview(fixture('sh1-preview'))));
+  const none = run(join(FIXTURES, 'sh3-zlib-quant16.spc'), join(dir, 'none.ply'), '--preview');
+  assert.equal(none.status, 1);
+  assert.equal(none.stderr.trim().split('\n').length, 1);
+  assert.match(none.stderr, /has no preview/);
+  const both = run(join(FIXTURES, 'sh1-preview.spc'), join(dir, 'both.ply'), '--preview', '--max-layer', '0');
+  assert.equal(both.status, 2);
+  assert.deepEqual(readdirSync(dir), ['preview.ply']);
 });

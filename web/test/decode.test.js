@@ -6,31 +6,7 @@ import assert from 'node:assert/strict';
 import { test } from 'node:test';
 
 import { SpcError, decode, inspect } from '../src/index.js';
-import { plyBytes } from '../src/ply.js';
-import { expectedPly, fixture, fixtureNames, readPly } from './helpers.js';
-
-/** Sketch attributes may differ from the reference by rounding of the model sums ([R-96]). */
-const TOLERANCE = 1e-5;
-
-/**
- * Compare decoded Gaussians with rows [from, from + count) of the expected PLY: positions exactly,
- * other properties to a tight tolerance.
- */
-function assertMatches(scene, expected, from = 0) {
-  const got = readPly(plyBytes(scene));
-  assert.deepEqual(got.names, expected.names);
-  const width = got.names.length;
-  for (let i = 0; i < got.count; i++) {
-    for (let j = 0; j < width; j++) {
-      const a = got.data[i * width + j];
-      const b = expected.data[(from + i) * width + j];
-      if (j < 3) assert.equal(a, b, `Gaussian ${i} ${got.names[j]}`);
-      else if (Math.abs(a - b) > TOLERANCE * (1 + Math.abs(b))) {
-        assert.fail(`Gaussian ${i} ${got.names[j]}: ${a} vs ${b}`);
-      }
-    }
-  }
-}
+import { assertMatches, expectedPly, fixture, fixtureNames } from './helpers.js';
 
 /** Where each layer ends in the bytes given (the gzip offsets for a wrapped file, when recorded). */
 function layerEnds(bytes) {

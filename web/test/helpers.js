@@ -8,6 +8,7 @@ import { dirname, join } from 'node:path';
 import { fileURLToPath } from 'node:url';
 
 import { ERROR_CODES, SpcError, StreamDecoder, decode, inspect } from '../src/index.js';
+import { plyBytes } from '../src/ply.js';
 
 export const FIXTURES = join(dirname(fileURLToPath(import.meta.url)), 'fixtures');
 
@@ -34,9 +35,46 @@ export function readPly(bytes) {
   return { names, count, data: new Float32Array(body.buffer, body.byteOffset, count * names.length) };
 }
 
-/** @param {string} name */
+/** @param {string} name a fixture, or `NAME.preview` for the preview of one that has it */
 export function expectedPly(name) {
   return readPly(new Uint8Array(readFileSync(join(FIXTURES, `${name}.ply`))));
+}
+
+/** Sketch attributes may differ from the reference by rounding of the model sums ([R-96]). */
+const TOLERANCE = 1e-5;
+
+/**
+ * Compare decoded Gaussians with rows [from, from + count) of the expected PLY: positions exactly,
+ * other properties to a tight tolerance.
+ */
+export function assertMatches(scene, expected, from = 0) {
+  const got = readPly(plyBytes(scene));
+  assert.deepEqual(got.names, expected.names);
+  const width = got.names.length;
+  for (let i = 0; i < got.count; i++) {
+    for (let j = 0; j < width; j++) {
+      const a = got.data[i * width + j];
+      const b = expected.data[(from + i) * width + j];
+      if (j < 3) assert.equal(a, b, `Gaussian ${i} ${got.names[j]}`);
+      else if (Math.abs(a - b) > TOLERANCE * (1 + Math.abs(b))) {
+        assert.fail(`Gaussian ${i} ${got.names[j]}: ${a} vs ${b}`);
+      }
+    }
+  }
+}
+
+/**
+ * Assert that two clouds hold the same Gaussians, bit for bit.
+ * @param {import('../src/decoder.js').Cloud} a
+ * @param {import('../src/decoder.js').Cloud} b
+ * @param {string} what
+ */
+export function assertSameClouds(a, b, what) {
+  assert.equal(a.count, b.count, `${what}: count`);
+  assert.equal(a.shDegree, b.shDegree, `${what}: SH degree`);
+  for (const key of ['positions', 'scales', 'rotations', 'opacities', 'shDC', 'shRest']) {
+    assert.deepEqual(Array.from(a[key]), Array.from(b[key]), `${what}: ${key}`);
+  }
 }
 
 /** Mulberry32: a small seeded PRNG, so a failing case can be rerun. */

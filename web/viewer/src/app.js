@@ -13,8 +13,15 @@
 //                      Every scene is stood upright in a +Y-up world: an .spc by the axis its
 //                      metadata stores, a .glb by its node's rotation (glTF is +Y up).
 //   capture=1          no overlay, and keep the frame of the first picture (tests, benchmark)
-//   layerPictures=1    also keep the frame that showed each non-empty layer, in
-//                      `window.spcViewerLayerPictures` (benchmark: quality at every layer)
+//   layerPictures=1    also keep the frame that showed each non-empty layer (and the preview, as
+//                      layer 'preview'), in `window.spcViewerLayerPictures` (benchmark: quality
+//                      at every layer)
+//   preview=0          ignore the file's preview (spec 7.4) and show its layers as they come
+//
+// A file with a preview shows it as soon as its bytes are in, and keeps it on screen instead of
+// the layers before its takeover layer T; when layers 0..T are in (or the last layer asked for),
+// the scene replaces it in one frame ([R-104]). A preview that does not decode is noted on the
+// page, and the layers show as if the file had none.
 //
 // Progress is shown on the page and kept in `window.spcViewer` (see `state` below), which the
 // browser tests and the benchmark read.
@@ -55,6 +62,11 @@ const state = {
   sceneUp: null,  // the scene's up axis as used (stored in the file, from the URL, or the default)
   prefixPsnr: null,  // what the encoder measured per layer prefix (metadata stats.prefix_psnr)
   prefixLine: null,  // the on-screen line made from it for the prefix shown, or null
+  showing: null,  // what is on screen (.spc): 'preview' (the file's preview) or 'scene' (its layers)
+  // the file's preview (spec 7.4) once decoded: {bytes (its section), gaussians, takeoverLayer,
+  // showFrom (the layer that replaces it), bytesLoaded, tDecoded, tShown, tDropped, droppedAtLayer}
+  preview: null,
+  previewError: null,  // why the file's preview is not shown ({code, name, message, line}), or null
 };
 window.spcViewer = state;
 
@@ -101,16 +113,31 @@ function showProgress() {
     `bytes loaded: ${formatBytes(state.bytesLoaded)} of ${formatBytes(state.totalBytes)}${share}`,
   ];
   if (state.kind === 'spc') {
-    lines.push(`layers shown: ${state.layersShown} of ${state.layerCount ?? '?'}`);
+    if (state.showing === 'preview') lines.push(previewLine(state.preview));
+    else lines.push(`layers shown: ${state.layersShown} of ${state.layerCount ?? '?'}`);
     state.prefixLine = prefixLine(state.prefixPsnr, state.layersShown);
     if (state.prefixLine) lines.push(state.prefixLine);
+    if (state.preview?.droppedAtLayer != null) {
+      lines.push(`preview (${formatBytes(state.preview.bytes)}) replaced by the scene at layer ` +
+        `${state.preview.droppedAtLayer}`);
+    }
+    if (state.previewError) lines.push(`preview not shown: ${state.previewError.line}`);
   }
-  lines.push(`Gaussians: ${state.gaussians.toLocaleString('en')}`);
+  const onScreen = state.showing === 'preview' ? `${state.preview.gaussians.toLocaleString('en')} (preview)`
+    : state.gaussians.toLocaleString('en');
+  lines.push(`Gaussians: ${onScreen}`);
   if (state.tFirstPicture != null) lines.push(`first picture: ${(state.tFirstPicture / 1000).toFixed(2)} s`);
   if (state.tComplete != null) lines.push(`complete: ${(state.tComplete / 1000).toFixed(2)} s`);
   if (state.error) lines.push(`error: ${errorLine(state.error)}`);
   hud.textContent = lines.join('\n');
   hud.dataset.status = state.status;
+}
+
+/** What the page says while the preview stands in for the scene: its size, and how far the
+ * scene's layers have come. */
+function previewLine(preview) {
+  return `showing: preview (${formatBytes(preview.bytes)}); scene: ${state.layersDecoded} of ` +
+    `${state.layerCount ?? '?'} layers in, shown once ${preview.showFrom + 1} are`;
 }
 
 /** One line for an error: the decoder's messages already end with their [code]; others get it
@@ -201,6 +228,42 @@ async function showSpc(app, camera, whenShown) {
   }
   let placed = false;
   const shown = [];
+  /** @type {object[]} events of the layers held back behind the preview, until it is dropped */
+  let held = [];
+  /** @type {object[] | null} set when the preview was just dropped: the layers it held back */
+  let released = null;
+
+  const place = (cloud, rotation) => {
+    if (cloud.count > 0 && !placed) placed = placeCamera(camera, rotatePositions(cloud.positions, rotation));
+  };
+
+  const addPreview = (p) => {  // its entity is in the scene already (the loader added it)
+    const preview = { bytes: p.bytes, gaussians: p.cloud.count, takeoverLayer: p.takeoverLayer,
+      showFrom: p.showFrom, bytesLoaded: p.bytesLoaded, tDecoded: now(), tShown: null,
+      tDropped: null, droppedAtLayer: null };
+    state.preview = preview;
+    state.showing = 'preview';
+    state.layerCount ??= p.layerCount;  // a file read as one stream gives no info document
+    place(p.cloud, p.rotation);
+    if (p.cloud.count > 0) {
+      shown.push(whenShown().then(() => {
+        if (preview.tDropped != null) return;  // replaced before any frame showed it
+        preview.tShown = now();
+        firstPicture(preview.tShown, preview.bytesLoaded, 0);
+        if (params.has('layerPictures')) keepLayerPicture({ index: 'preview', tShown: preview.tShown }, 0);
+        showProgress();
+      }));
+    }
+    showProgress();
+  };
+
+  const dropPreview = (drop) => {  // before the layer that drops it is told to addLayer
+    state.preview.tDropped = now();
+    state.preview.droppedAtLayer = drop.layer;
+    state.showing = 'scene';
+    released = held;
+    held = [];
+  };
 
   const addLayer = (layer) => {  // its entity is in the scene already (the loader added it)
     const cloud = layer.cloud;
@@ -209,30 +272,29 @@ async function showSpc(app, camera, whenShown) {
     state.events.push(event);
     state.layersDecoded = layer.index + 1;
     state.gaussians += cloud.count;
-    if (cloud.count > 0 && !placed) {
-      placed = placeCamera(camera, rotatePositions(cloud.positions, layer.rotation));
+    if (state.showing == null) state.showing = 'scene';
+    place(cloud, layer.rotation);
+    if (!layer.shown) {  // held back behind the preview
+      held.push(event);
+      showProgress();
+      return;
     }
-    const ready = cloud.count > 0 ? whenShown() : Promise.resolve();
+    const waited = released ?? [];
+    released = null;
+    const inPicture = cloud.count + waited.reduce((n, e) => n + e.gaussians, 0);
+    const ready = inPicture > 0 ? whenShown() : Promise.resolve();
     shown.push(ready.then(() => {
       event.tShown = now();
+      for (const e of waited) e.tShown = event.tShown;
       state.layersShown = Math.max(state.layersShown, layer.index + 1);
-      if (cloud.count > 0 && state.tFirstPicture == null) {
-        state.tFirstPicture = event.tShown;
-        state.bytesAtFirstPicture = event.bytesLoaded;
-        // a slow renderer may show later layers in the same frame when bytes come in fast
-        state.layersInFirstPicture = state.layersDecoded;
-        state.bytesWhenFirstPictureShown = state.bytesLoaded;
-        // Still the frame that showed it (promises resolve after the frame, before the next):
-        // kept for tests, which may look later, when more layers are on screen.
-        if (params.has('capture')) window.spcViewerFirstPicture = canvas.toDataURL('image/png');
-      }
-      if (cloud.count > 0 && params.has('layerPictures')) keepLayerPicture(event);
+      if (inPicture > 0) firstPicture(event.tShown, event.bytesLoaded, state.layersDecoded);
+      if (cloud.count > 0 && params.has('layerPictures')) keepLayerPicture(event, state.layersDecoded);
       showProgress();
     }));
     showProgress();
   };
 
-  const result = await streamLayersInto(loadSpc, app, maxLayer, addLayer);
+  const result = await streamLayersInto(loadSpc, app, maxLayer, { addLayer, addPreview, dropPreview });
   state.mode = result.mode;
   state.totalBytes = state.totalBytes ?? result.fileSize;
   if (Number.isFinite(maxLayer)) {
@@ -241,18 +303,42 @@ async function showSpc(app, camera, whenShown) {
   await Promise.all(shown);
 }
 
-/** The frame that showed the layer of `event`, with what it holds: layers decoded after this one
- * but before its frame are in it too (`layersInPicture`), as when bytes come faster than frames. */
-function keepLayerPicture(event) {
+/** Note the first picture on screen, once: when, the bytes it needed, and the scene layers in it
+ * (0 for the preview). */
+function firstPicture(t, bytesNeeded, layers) {
+  if (state.tFirstPicture != null) return;
+  state.tFirstPicture = t;
+  state.bytesAtFirstPicture = bytesNeeded;
+  // a slow renderer may show later layers in the same frame when bytes come in fast
+  state.layersInFirstPicture = layers;
+  state.bytesWhenFirstPictureShown = state.bytesLoaded;
+  // Still the frame that showed it (promises resolve after the frame, before the next): kept for
+  // tests, which may look later, when more layers are on screen.
+  if (params.has('capture')) window.spcViewerFirstPicture = canvas.toDataURL('image/png');
+}
+
+/** The frame that showed the layer of `event` (or the preview: layer 'preview'), with what it
+ * holds: layers decoded after this one but before its frame are in it too (`layersInPicture`), as
+ * when bytes come faster than frames; 0 for the preview, which stands in for the layers. */
+function keepLayerPicture(event, layersInPicture) {
   window.spcViewerLayerPictures ??= [];
-  window.spcViewerLayerPictures.push({ layer: event.index, layersInPicture: state.layersDecoded,
+  window.spcViewerLayerPictures.push({ layer: event.index, layersInPicture,
     bytesLoaded: state.bytesLoaded, tShown: event.tShown, png: canvas.toDataURL('image/png') });
 }
 
 /** The package's PlayCanvas loader, with the page's bookkeeping of requests and bytes. */
-async function streamLayersInto(loadSpc, app, maxLayer, addLayer) {
+async function streamLayersInto(loadSpc, app, maxLayer, { addLayer, addPreview, dropPreview }) {
   return loadSpc(app, pc, src, {
     maxLayer, up: params.get('up'),
+    preview: params.get('preview') !== '0',
+    onPreview: addPreview,
+    onPreviewDropped: dropPreview,
+    onPreviewError: (error) => {
+      state.previewError = { code: error.code ?? null, name: error.name, message: error.message };
+      state.previewError.line = errorLine(state.previewError);
+      console.warn('the preview is not shown:', error);
+      showProgress();
+    },
     onRequest: (r) => {
       state.requests.push({ first: r.first, last: r.last, status: r.status, t: now() });
       state.totalBytes = state.totalBytes ?? r.contentRange?.size ?? null;

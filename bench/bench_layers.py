@@ -8,8 +8,10 @@ layer is decoded (``spcodec decode --max-layer K``) and rendered by the PlayCanv
 orbit framing and at half its distance against the original (bench/viewer_yardstick.py). It
 prints one table per scene and the issue's targets: the longest prefix within 30 % of the bytes
 within 3 dB of the full file, the first non-empty layer complete within 10 % of the bytes and
-within 10 dB. ``--rd`` adds the RD points of ``bench/bench_rd.py`` (files encoded for their size)
-to the figure, so a prefix can be read against a file made for its size.
+within 10 dB. A file with a preview (spec 1.1) leads with the preview's row and is judged as a
+viewer shows it: the preview from its arrival until its takeover layer. ``--rd`` adds the RD
+points of ``bench/bench_rd.py`` (files encoded for their size) to the figure, so a prefix can be
+read against a file made for its size.
 
     python bench/bench_layers.py --json layers.json [--scenes guitar fourth_st biker donut kacytran]
         [--iterations 3000] [--threads 1] [--patch-layers N]
@@ -54,9 +56,19 @@ def cloud_framings(cloud: spcodec.GaussianCloud, original: Path, up: str, antial
 
 def prefixes(data: bytes, original: Path, up: str, antialiased: bool, cache: Path) -> list[dict]:
     """Bytes, share, Gaussians and viewer PSNR at both framings of every prefix that ends at a
-    non-empty layer."""
+    non-empty layer, led by the preview's row (``"layer": "preview"``) when the file has one."""
     info = spcodec.inspect(data).to_json()
     rows, gaussians = [], 0
+    preview = spcodec.decode_preview(data)
+    if preview is not None:
+        psnr = cloud_framings(preview.cloud, original, up, antialiased, cache)
+        end = preview.section.end
+        rows.append({"layer": "preview", "takeover_layer": preview.takeover_layer, "bytes": end,
+                     "share": end / len(data), "gaussians": len(preview.cloud),
+                     "orbit": round(psnr["orbit"], 3), "close": round(psnr["close"], 3)})
+        print(f"    preview: {end:,} B ({end / len(data):.1%}) orbit {psnr['orbit']:.2f} "
+              f"close {psnr['close']:.2f} dB, shown until layer {preview.takeover_layer}",
+              flush=True)
     for layer in info["layers"]:
         gaussians += layer["gaussians"]
         if not gaussians or layer["gaussians"] == 0:
@@ -72,8 +84,19 @@ def prefixes(data: bytes, original: Path, up: str, antialiased: bool, cache: Pat
     return rows
 
 
+def on_screen(rows: list[dict]) -> list[dict]:
+    """What a viewer shows as the bytes arrive: the preview, from its arrival until the prefix
+    that ends with its takeover layer ([R-104]), then the prefixes."""
+    preview = rows[0] if rows and rows[0]["layer"] == "preview" else None
+    if preview is None:
+        return rows
+    return [preview] + [dict(preview, bytes=r["bytes"], share=r["share"], layer=r["layer"])
+                        if r["layer"] < preview["takeover_layer"] else r for r in rows[1:]]
+
+
 def verdict(rows: list[dict], framing: str) -> dict:
-    """The issue's targets for one file at one framing."""
+    """The issue's targets for one file at one framing, judged on what a viewer shows."""
+    rows = on_screen(rows)
     full = rows[-1][framing]
     early = [r for r in rows if r["share"] <= SHARE_TARGET]
     best = max(early, key=lambda r: r[framing]) if early else None
@@ -105,7 +128,10 @@ def run(args: argparse.Namespace) -> list[dict]:
     for scene in args.scenes:
         rel, up, antialiased = SCENES[scene]
         original = data_dir() / rel
-        for label in LABELS:
+        # files given for a scene are judged instead of encoding any
+        labels = tuple(key.split(":", 1)[1] for key in given if key.startswith(f"{scene}:")) \
+            or LABELS
+        for label in labels:
             if (scene, label) in done:
                 continue
             source = given.get(f"{scene}:{label}")
@@ -133,7 +159,8 @@ def report(rows: list[dict]) -> None:
               "| prefix | bytes | share | Gaussians | orbit dB | close dB |\n"
               "|---|---:|---:|---:|---:|---:|")
         for p in row["prefixes"]:
-            print(f"| L0-{p['layer']} | {p['bytes']:,} | {p['share']:.1%} | {p['gaussians']:,} | "
+            name = "preview" if p["layer"] == "preview" else f"L0-{p['layer']}"
+            print(f"| {name} | {p['bytes']:,} | {p['share']:.1%} | {p['gaussians']:,} | "
                   f"{p['orbit']:.2f} | {p['close']:.2f} |")
     print("\n| scene | encode | framing | full dB | best <= 30 % | gap dB | first layer at | "
           "its gap dB | targets |\n|---|---|---|---:|---:|---:|---:|---:|---|")
@@ -161,8 +188,8 @@ def plot(rows: list[dict], path: Path, rd: Path | None) -> None:
         for line, framing in enumerate(("orbit", "close")):
             ax = axes[line][col]
             for row in (r for r in rows if r["scene"] == scene):
-                ax.plot([p["bytes"] / 1e3 for p in row["prefixes"]],
-                        [p[framing] for p in row["prefixes"]],
+                shown = on_screen(row["prefixes"])
+                ax.plot([p["bytes"] / 1e3 for p in shown], [p[framing] for p in shown],
                         "s-" if row["label"].startswith("nested") else "o--",
                         label=f"{row['label']} prefixes")
             points = [r for r in rd_rows if r["scene"] == scene and r.get(framing) is not None
@@ -196,7 +223,8 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--patch-layers", type=int, help="patch layers of both encodes")
     ap.add_argument("--file", action="append", default=[], metavar="SCENE:LABEL=PATH",
-                    help="judge this .spc instead of encoding (LABEL: plain or nested)")
+                    help="judge this .spc (LABEL: any name); a scene with files given is not "
+                    "encoded")
     ap.add_argument("--viewer-cache", type=Path,
                     default=Path(tempfile.gettempdir()) / "spcodec-yardstick")
     ap.add_argument("--plot", type=Path, help="draw the figure from --json into this PNG and exit")

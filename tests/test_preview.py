@@ -311,3 +311,24 @@ def test_attach_preview_on_the_command_line_takes_over_where_the_metadata_says(t
     err = capsys.readouterr().err
     assert "not a layer of the scene" in err and err.count("\n") == 1
     assert not (tmp_path / "bad.spc").exists()
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.data())
+def test_a_damaged_preview_is_refused_with_a_spec_error_never_a_crash(data):
+    """Untrusted input: any bytes of the payload, its CRC made right so the checks behind it run,
+    give a preview or a SpcodecError with a code; the scene decodes all the same ([R-102])."""
+    from spcodec.errors import SpcodecError
+
+    payload = bytearray(_payload(_preview_bytes()))
+    for _ in range(data.draw(st.integers(1, 4))):
+        at = data.draw(st.integers(0, len(payload) - 1))
+        payload[at] = data.draw(st.integers(0, 255))
+    if data.draw(st.booleans()):
+        payload = payload[:data.draw(st.integers(0, len(payload)))]
+    damaged = _with_preview_payload(bytes(payload))
+    try:
+        spcodec.decode_preview(damaged)
+    except SpcodecError as exc:
+        assert exc.code
+    assert len(spcodec.decode(damaged)) == spcodec.decode_layers(damaged).header.gaussian_count

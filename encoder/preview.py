@@ -19,6 +19,7 @@ from spcodec.errors import UsageError
 from spcodec.preview import attach_preview, choose_takeover
 
 from .config import EncoderConfig
+from .presets import sized
 from .retrain import RunControl
 from .stages import ProgressFactory, silent
 
@@ -33,8 +34,9 @@ def encode_with_preview(cloud: GaussianCloud, config: EncoderConfig, preview_siz
     """Encode ``cloud`` with a preview made for ``preview_size`` bytes embedded.
 
     With ``config.target_size`` the whole file, preview included, is aimed at it: the scene is
-    made for what the preview leaves. The preview is encoded without a checkpoint (a resumed encode makes it
-    again, deterministically) and with the scene's settings, so both are trained on the same
+    made for what the preview leaves. The preview is encoded as ``--target-size`` would make it
+    (:func:`.presets.sized`), without a checkpoint (a resumed encode makes it again,
+    deterministically), and otherwise with the scene's settings, so both are trained on the same
     views and their PSNR on them can be compared.
     """
     from .pipeline import EncodeResult, encode, section_sizes
@@ -49,7 +51,7 @@ def encode_with_preview(cloud: GaussianCloud, config: EncoderConfig, preview_siz
             raise UsageError(f"--preview-size {preview_size} leaves the scene {max(rest, 0)} of "
                              f"the {config.target_size} bytes, less than the preview: a preview "
                              "is a small part of the file (a tenth, say)")
-    preview_config = dataclasses.replace(config, target_size=preview_size, target_psnr=None)
+    preview_config = dataclasses.replace(sized(config, preview_size), target_psnr=None)
     if config.retrain is not None and config.retrain.nested:  # the preview is one plain file
         preview_config.retrain = dataclasses.replace(config.retrain, nested=False)
     preview_control = None if control is None else \

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import struct
 
-from spcodec.container import PREVIEW_MINOR, Codec, PositionMode, SectionType
+from spcodec.container import Codec, PositionMode, SectionType
 from spcodec.writer import Preview, SectionSpec
 
 from . import scenes
@@ -39,7 +39,6 @@ def with_preview(seed: int = 41) -> Draft:
     """The scene with a valid preview right after its metadata, taking over at layer 1."""
     draft = scene_draft(seed)
     draft.sections.insert(1, preview_section(Preview(preview_file(), 1).payload()))
-    draft.header["version_minor"] = PREVIEW_MINOR
     return draft
 
 
@@ -65,7 +64,6 @@ def preview_never_read() -> bytes:
                                                 layer=2))
     draft.insert_after_layer(1, SectionSpec(SectionType.PREVIEW, 1, b"", 7, required=False,
                                             stored=b"\x07" * 5))
-    draft.header["version_minor"] = PREVIEW_MINOR
     return draft.build()
 
 

@@ -12,7 +12,7 @@ import math
 
 from .codecs import gunzip, gzip_wrap, is_gzip
 from .container import Codec, SectionType
-from .decoder import Header, decode_layers, decode_preview, read_header
+from .decoder import Header, decode_layers, read_header
 from .errors import UsageError
 from .limits import DEFAULT_LIMITS
 from .writer import LayerSpec, Preview, SectionSpec, assemble, layer_end_offsets
@@ -30,7 +30,8 @@ def attach_preview(scene: bytes, preview: bytes, takeover_layer: int,
     inner, small = _whole_file(scene, "the scene"), _whole_file(preview, "the preview")
     header = read_header(inner, DEFAULT_LIMITS)
     decode_layers(small)  # a preview that does not decode is refused before anything is written
-    if decode_preview(small) is not None:
+    if any(sec.type == SectionType.PREVIEW for sec in read_header(small, DEFAULT_LIMITS).sections):
+        # in any layer: refuses an embedded file with a PREVIEW section anywhere
         raise UsageError("the preview has a preview of its own; a preview cannot nest")
     if not 0 <= takeover_layer < len(header.layers):
         raise UsageError(f"takeover layer {takeover_layer} is not a layer of the scene "

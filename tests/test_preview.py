@@ -99,6 +99,7 @@ def test_attaching_again_replaces_the_preview_and_keeps_gzip_as_the_scene_had_it
     ("prefix scene", "the scene is a prefix"),
     ("prefix preview", "the preview is a prefix"),
     ("nested", "cannot nest"),
+    ("nested late", "cannot nest"),
     ("takeover", "not a layer of the scene"),
 ])
 def test_attach_refuses_what_would_make_a_bad_preview(case, message):
@@ -111,6 +112,8 @@ def test_attach_refuses_what_would_make_a_bad_preview(case, message):
         small = small[:spcodec.inspect(small).to_json()["layers"][0]["end_offset"]]
     elif case == "nested":
         small = attach_preview(small, _preview_bytes(9), 0)
+    elif case == "nested late":  # not a preview of its own, but [R-103] refuses it all the same
+        small = _with_late_preview()
     else:
         takeover = len(ends)
     with pytest.raises(UsageError, match=message):
@@ -121,7 +124,6 @@ def test_attach_refuses_what_would_make_a_bad_preview(case, message):
 def _with_preview_payload(payload: bytes, codec: Codec = Codec.NONE, *, crc: int | None = None,
                           extra: list[SectionSpec] = ()) -> bytes:
     """The conformance scene with a PREVIEW section of ``payload`` in layer 0 (and ``extra``)."""
-    from spcodec.conformance.forge import Draft
     from spcodec.conformance.preview_cases import preview_section, scene_draft
 
     draft = scene_draft(41)
@@ -130,7 +132,7 @@ def _with_preview_payload(payload: bytes, codec: Codec = Codec.NONE, *, crc: int
     draft.sections.insert(1, section)
     for sec in extra:
         draft.insert_after_layer(sec.layer, sec)
-    return Draft.build(draft)
+    return draft.build()
 
 
 def _payload(file: bytes, takeover: int = 1, reserved: int = 0) -> bytes:
@@ -180,15 +182,19 @@ def test_a_bad_preview_is_refused_with_its_code_and_the_scene_still_decodes(data
         assert len(spcodec.decode(data)) == spcodec.decode_layers(data).header.gaussian_count
 
 
-def test_only_layer_zero_holds_a_preview():
-    """[R-103]: a PREVIEW section in a later layer is not a preview."""
-    late = SectionSpec(SectionType.PREVIEW, 2, _payload(_preview_bytes()), Codec.NONE,
-                       required=False)
+def _with_late_preview() -> bytes:
+    """The conformance scene with a PREVIEW section in layer 2 only."""
     from spcodec.conformance.preview_cases import scene_draft
 
     draft = scene_draft(44)
-    draft.insert_after_layer(2, late)
-    data = draft.build()
+    draft.insert_after_layer(2, SectionSpec(SectionType.PREVIEW, 2, _payload(_preview_bytes()),
+                                            Codec.NONE, required=False))
+    return draft.build()
+
+
+def test_only_layer_zero_holds_a_preview():
+    """[R-103]: a PREVIEW section in a later layer is not a preview."""
+    data = _with_late_preview()
     assert spcodec.decode_preview(data) is None
     assert "preview" not in spcodec.inspect(data).to_json()
 

@@ -202,6 +202,7 @@ def record(args: argparse.Namespace, config: VanillaConfig, targets: Targets, ru
         "opacity_resets": run.densifier.resets,
         "test": test,
         "machine": {"cpus": os.cpu_count(), "torch_threads": torch.get_num_threads(),
+                    "device": torch.cuda.get_device_name() if args.device == "cuda" else "cpu",
                     "nice": os.nice(0), "platform": platform.platform(),
                     "torch": torch.__version__, "python": platform.python_version()},
         "git_commit": git_commit(),
@@ -225,6 +226,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         "images give larger gradients per Gaussian and want a larger value")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    p.add_argument("--device", default="cpu", choices=["cpu", "cuda"],
+                   help="where the Gaussians train (torch renderer); evaluation renders on the CPU "
+                        "(default: cpu)")
     p.add_argument("--max-views", type=int, default=None,
                    help="use at most this many training views (default: all)")
     p.add_argument("--no-eval", action="store_true", help="skip the test-split evaluation")
@@ -243,13 +247,15 @@ def main(argv: list[str] | None = None) -> dict:
     if args.threads:
         torch.set_num_threads(args.threads)
     dataset = load_dataset(args.dataset, downscale=args.downscale)
-    targets = dataset_targets(dataset, torch.device("cpu"), args.max_views)
+    if args.device == "cuda" and not torch.cuda.is_available():
+        raise SystemExit("--device cuda: torch sees no GPU; use --device cpu")
+    targets = dataset_targets(dataset, torch.device(args.device), args.max_views)
     white = all(c >= 1.0 for c in targets.background)
     config = VanillaConfig(iterations=args.iterations, init_points=args.init_points,
                            sh_degree=args.sh_degree, seed=args.seed,
                            densify=DensifyConfig(grad_threshold=args.grad_threshold,
                                                  reset_at_start=white).scaled(args.iterations))
-    run = train(targets, config, progress=not args.quiet)
+    run = train(targets, config, args.device, progress=not args.quiet)
     write_ply(args.output, run.cloud)
     test = {}
     if not args.no_eval and dataset.test:

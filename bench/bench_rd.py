@@ -23,16 +23,22 @@ Methods (the paper's section "Comparison Methods"):
 * ``spz4``: S&P++ aimed at a quarter of SPZ's bytes (``--target-size``), the issue's bar;
 * ``sp-target``: S&P++ aimed at each ``--spz-fractions`` of SPZ's bytes (``--target-size``): the
   curve a user walks by asking for a size, where ``sp`` walks the patch downsample; its figure
-  line runs through the ``spz4`` point, so the default shares leave the quarter out.
+  line runs through the ``spz4`` point, so the default shares leave the quarter out;
+* ``pr-target``: Prune&Retrain aimed at each ``--pr-fractions`` of SPZ's bytes (the quarter
+  included), the same size control as ``sp-target``: the two curves compare at equal bytes.
 
 Every encode runs as its own ``spcodec encode`` process under ``/usr/bin/time`` (peak memory
-per run) with ``--stats`` (time per stage). Rows are appended to a JSON file as they finish, so an
-interrupted sweep continues where it stopped; ``--plot`` draws one PSNR-vs-size figure per scene
-(log size axis) into ``docs/results/``. matplotlib is needed for the plots only (install by hand).
+per run) with ``--stats`` (time per stage). With ``--encoded DIR`` a point whose file
+``DIR/SCENE-METHOD-POINT.spc`` (and ``.stats.json``) exists is judged, not encoded: encodes made
+elsewhere with the same options (on a lent GPU, say) join the same rows. Rows are appended to a
+JSON file as they finish, so an interrupted sweep continues where it stopped; ``--plot`` draws
+one PSNR-vs-size figure per scene (log size axis) into ``docs/results/``. matplotlib is needed
+for the plots only (install by hand).
 
     python bench/bench_rd.py --json rd.json [--scenes fourth_st donut guitar kacytran lego]
-        [--methods sp pr noretrain spz sog spz4 sp-target] [--factors 2 4 8 16]
-        [--spz-fractions 0.0625 0.125 0.5] [--iterations 3000]
+        [--methods sp pr noretrain spz sog spz4 sp-target pr-target] [--factors 2 4 8 16]
+        [--spz-fractions 0.0625 0.125 0.5] [--pr-fractions 0.0625 0.125 0.25 0.5]
+        [--iterations 3000] [--encoded DIR]
         [--lego-model /path/lego.ply --lego-downscale 4] [--no-viewer]
     python bench/bench_rd.py --json rd.json --plot docs/results
 """
@@ -57,13 +63,14 @@ from bench_quality import SCENES, spz_round_trip  # bench/ is on sys.path
 from scenes import data_dir
 
 LEGO_DATASET = "nerf_synthetic_lego"
-METHODS = ("sp", "pr", "noretrain", "spz", "sog", "spz4", "sp-target")
-SIZED = ("spz4", "sp-target")
+METHODS = ("sp", "pr", "noretrain", "spz", "sog", "spz4", "sp-target", "pr-target")
+SIZED = ("spz4", "sp-target", "pr-target")
 """Methods aimed at a share of SPZ's bytes: they need the scene's ``spz`` row first."""
 LABELS = {"sp": "S&P++ (retrained)", "pr": "Prune&Retrain", "noretrain": "no-retrain presets",
           "spz": "SPZ", "sog": "SOG", "spz4": "S&P++ at SPZ/4", "original": "original",
           # rows added by hand from single encodes (docs/RESULTS.md says which)
           "sp-highrate": "S&P++, highrate codebooks", "sp-target": "S&P++ --target-size",
+          "pr-target": "Prune&Retrain --target-size",
           "sp-target-uncapped": "S&P++ --target-size, sketch not capped (before 13.6)",
           "spz4-uncapped": "S&P++ at SPZ/4, sketch not capped (before 13.6)",
           "spz4-p12": "S&P++ at SPZ/4, 12-bit positions, 1000 steps (13.10)"}
@@ -135,7 +142,7 @@ def encode_args(method: str, param, setup: dict, args) -> list[str]:
               "--device", "cpu", *view]
     if setup["dataset"] is not None:
         common += ["--dataset", str(setup["dataset"]), "--downscale", str(setup["downscale"])]
-    if method == "pr":
+    if method in ("pr", "pr-target"):
         common += ["--no-sketch", "--prune", "uniform"]
     return common
 
@@ -149,6 +156,17 @@ def run_encode(ply: Path, extra: list[str], work: Path) -> tuple[Path, dict, flo
            "encode", str(ply), "-o", str(out), "--stats", str(stats), "--quiet", *extra]
     subprocess.run(cmd, check=True)
     return out, json.loads(stats.read_text()), int(mem.read_text().split()[-1]) / 1024
+
+
+def encoded_file(folder: Path | None, scene: str, method: str, point
+                 ) -> tuple[Path, dict, None] | None:
+    """(file, statistics, no peak memory) of a point encoded elsewhere, or None."""
+    if folder is None:
+        return None
+    out = folder / f"{scene}-{method}-{point}.spc"
+    if not out.exists():
+        return None
+    return out, json.loads(out.with_suffix(".stats.json").read_text()), None
 
 
 def sweep(args) -> None:
@@ -179,7 +197,7 @@ def sweep(args) -> None:
                         **judge(original, original, setup), gaussians=len(original)))
         points = {"sp": args.factors, "pr": args.factors,
                   "noretrain": ["lowrate", "balanced", "highrate"], "spz": ["-"], "sog": ["-"],
-                  "spz4": ["-"], "sp-target": args.spz_fractions}
+                  "spz4": ["-"], "sp-target": args.spz_fractions, "pr-target": args.pr_fractions}
         for method in args.methods:
             for param in points[method]:
                 if (name, method, str(param)) in done:
@@ -207,9 +225,14 @@ def sweep(args) -> None:
                         share = 0.25 if method == "spz4" else param
                         target = int(spz["bytes"] * share)
                     start = time.perf_counter()
-                    out, stats, peak = run_encode(setup["ply"],
-                                                  encode_args(method, target, setup, args), work)
-                    seconds = time.perf_counter() - start
+                    made = encoded_file(args.encoded, name, method, param)
+                    if made is not None:
+                        out, stats, peak = made
+                    else:
+                        out, stats, peak = run_encode(
+                            setup["ply"], encode_args(method, target, setup, args), work)
+                    seconds = sum(stats["seconds"].values()) if made else \
+                        time.perf_counter() - start
                     decoded = spcodec.decode(out)
                     decoded_ply = work / "decoded.ply"
                     spcodec.write_ply(decoded_ply, decoded)
@@ -218,6 +241,7 @@ def sweep(args) -> None:
                                 **judge(decoded, original, setup, decoded_ply, viewer),
                                 seconds=seconds, stages=stats["seconds"], peak_mib=peak,
                                 ply=ply_bytes, gaussians=len(decoded),
+                                encoded=str(out) if made else "here",
                                 sketch=stats["sketch_gaussians"], reported=stats.get("quality"),
                                 retrain=stats.get("retrain")))
                     done.add((name, method, str(param)))
@@ -246,6 +270,7 @@ def plot(args) -> None:
     styles = {"sp": ("o-", "C0"), "pr": ("s--", "C1"), "noretrain": ("^:", "C2"),
               "spz": ("*", "C3"), "sog": ("X", "C5"), "spz4": ("P", "C4"), "original": ("D", "k"),
               "sp-target": ("o-", "C6"), "sp-target-uncapped": ("x:", "C7"),
+              "pr-target": ("s--", "C1"),
               "spz4-uncapped": ("x", "C4"), "spz4-p12": ("P", "C8")}
     for name in dict.fromkeys(r["scene"] for r in rows):
         panels = [(key, title) for key, title in PANELS
@@ -284,6 +309,10 @@ def main() -> None:
     ap.add_argument("--factors", nargs="+", type=float, default=[2, 4, 8, 16])
     ap.add_argument("--spz-fractions", nargs="+", type=float, default=[1 / 16, 1 / 8, 1 / 2],
                     help="sp-target: the shares of SPZ's bytes to aim at (a quarter is spz4's)")
+    ap.add_argument("--pr-fractions", nargs="+", type=float, default=[1 / 16, 1 / 8, 1 / 4, 1 / 2],
+                    help="pr-target: the shares of SPZ's bytes to aim at")
+    ap.add_argument("--encoded", type=Path, help="judge DIR/SCENE-METHOD-POINT.spc (with its "
+                    ".stats.json) where it exists rather than encoding that point")
     ap.add_argument("--iterations", type=int, default=3000)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--no-viewer", action="store_true", help="skip the PlayCanvas columns")

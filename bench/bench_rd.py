@@ -16,7 +16,7 @@ Methods (the paper's section "Comparison Methods"):
   finish) at each ``--factors`` patch downsample;
 * ``pr``: Prune&Retrain, every Gaussian treated as patch (``--no-sketch``) and pruned uniformly
   (``--prune uniform``) by the same factors, same retraining budget;
-* ``noretrain``: the three no-retrain presets;
+* ``noretrain``: the four no-retrain presets (``transparent`` keeps every Gaussian);
 * ``spz``: a real SPZ writer (PlayCanvas splat-transform on PATH or ``$SPLAT_TRANSFORM``, else
   gsply), decoded back and judged like the rest;
 * ``sog``: PlayCanvas's SOG, written by splat-transform on the CPU (``-g cpu``);
@@ -196,8 +196,9 @@ def sweep(args) -> None:
             record(dict(scene=name, method="original", param="-", point="-", bytes=ply_bytes,
                         **judge(original, original, setup), gaussians=len(original)))
         points = {"sp": args.factors, "pr": args.factors,
-                  "noretrain": ["lowrate", "balanced", "highrate"], "spz": ["-"], "sog": ["-"],
-                  "spz4": ["-"], "sp-target": args.spz_fractions, "pr-target": args.pr_fractions}
+                  "noretrain": ["lowrate", "balanced", "highrate", "transparent"],
+                  "spz": ["-"], "sog": ["-"], "spz4": ["-"], "sp-target": args.spz_fractions,
+                  "pr-target": args.pr_fractions}
         for method in args.methods:
             for param in points[method]:
                 if (name, method, str(param)) in done:

@@ -83,7 +83,8 @@ def scene_setup(name: str, args) -> dict:
     if name == "lego":
         if not args.lego_model:
             raise SystemExit("lego needs --lego-model (a model made by bench/train_vanilla.py)")
-        return {"ply": Path(args.lego_model), "up": "-y", "antialiased": False,
+        # Blender's world is z-up (the training cameras sit above z = 0.5): viewers orbit it so
+        return {"ply": Path(args.lego_model), "up": "+z", "antialiased": False,
                 "dataset": data_dir() / LEGO_DATASET, "downscale": args.lego_downscale}
     rel, up, antialiased = SCENES[name]
     return {"ply": data_dir() / rel, "up": up, "antialiased": antialiased, "dataset": None,

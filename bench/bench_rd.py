@@ -71,6 +71,7 @@ LABELS = {"sp": "S&P++ (retrained)", "pr": "Prune&Retrain", "noretrain": "no-ret
           # rows added by hand from single encodes (docs/RESULTS.md says which)
           "sp-highrate": "S&P++, highrate codebooks", "sp-target": "S&P++ --target-size",
           "pr-target": "Prune&Retrain --target-size",
+          "nosketch-target": "no sketch, importance pruning, --target-size (13.18)",
           "sp-target-uncapped": "S&P++ --target-size, sketch not capped (before 13.6)",
           "spz4-uncapped": "S&P++ at SPZ/4, sketch not capped (before 13.6)",
           "spz4-p12": "S&P++ at SPZ/4, 12-bit positions, 1000 steps (13.10)"}
@@ -278,7 +279,7 @@ def plot(args) -> None:
     styles = {"sp": ("o-", "C0"), "pr": ("s--", "C1"), "noretrain": ("^:", "C2"),
               "spz": ("*", "C3"), "sog": ("X", "C5"), "spz4": ("P", "C4"), "original": ("D", "k"),
               "sp-target": ("o-", "C6"), "sp-target-uncapped": ("x:", "C7"),
-              "pr-target": ("s--", "C1"),
+              "pr-target": ("s--", "C1"), "nosketch-target": ("D", "C9"),
               "spz4-uncapped": ("x", "C4"), "spz4-p12": ("P", "C8")}
     for name in dict.fromkeys(r["scene"] for r in rows):
         panels = [(key, title) for key, title in PANELS

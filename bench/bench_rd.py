@@ -301,6 +301,8 @@ def plot(args) -> None:
             ax.set_xlabel("file size (MB, log scale)")
             against = "test images" if name == "lego" and key == "psnr" else "the original"
             ax.set_ylabel(f"PSNR (dB) against {against}")
+            if name == "lego" and key == "psnr":
+                title = "against its test images"
             ax.set_title(f"{name}: {title}", fontsize=10)
             ax.grid(True, which="both", alpha=0.3)
         axes[0][0].legend(fontsize=8)

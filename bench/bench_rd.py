@@ -299,11 +299,11 @@ def plot(args) -> None:
             ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
             ax.xaxis.set_minor_formatter(FuncFormatter(_minor_label))
             ax.set_xlabel("file size (MB, log scale)")
-            against = "test images" if name == "lego" and key == "psnr" else "the original"
+            test_images = name == "lego" and key == "psnr"
+            against = "test images" if test_images else "the original"
             ax.set_ylabel(f"PSNR (dB) against {against}")
-            if name == "lego" and key == "psnr":
-                title = "against its test images"
-            ax.set_title(f"{name}: {title}", fontsize=10)
+            ax.set_title(f"{name}: {'against its test images' if test_images else title}",
+                         fontsize=10)
             ax.grid(True, which="both", alpha=0.3)
         axes[0][0].legend(fontsize=8)
         fig.tight_layout()

@@ -50,7 +50,7 @@ from spcodec.encoder.progress import StageReporter
 from spcodec.fileio import atomic_write
 from spcodec.imaging.datasets import load_dataset
 from spcodec.imaging.evaluate import EvalConfig, evaluate_against_dataset
-from spcodec.imaging.render import GaussianParams, RenderSettings
+from spcodec.imaging.render import GaussianParams, RenderSettings, resolve_device
 from spcodec.imaging.render.sh import SH_C0
 from spcodec.imaging.training.densify import REFERENCE_ITERATIONS, Densifier, DensifyConfig
 from spcodec.imaging.training.loop import FitLoop, StepReport
@@ -247,15 +247,17 @@ def main(argv: list[str] | None = None) -> dict:
     if args.threads:
         torch.set_num_threads(args.threads)
     dataset = load_dataset(args.dataset, downscale=args.downscale)
-    if args.device == "cuda" and not torch.cuda.is_available():
-        raise SystemExit("--device cuda: torch sees no GPU; use --device cpu")
-    targets = dataset_targets(dataset, torch.device(args.device), args.max_views)
+    try:
+        device = resolve_device(args.device)
+    except RuntimeError as exc:
+        raise SystemExit(f"--device {args.device}: {exc}; use --device cpu") from None
+    targets = dataset_targets(dataset, device, args.max_views)
     white = all(c >= 1.0 for c in targets.background)
     config = VanillaConfig(iterations=args.iterations, init_points=args.init_points,
                            sh_degree=args.sh_degree, seed=args.seed,
                            densify=DensifyConfig(grad_threshold=args.grad_threshold,
                                                  reset_at_start=white).scaled(args.iterations))
-    run = train(targets, config, args.device, progress=not args.quiet)
+    run = train(targets, config, device, progress=not args.quiet)
     write_ply(args.output, run.cloud)
     test = {}
     if not args.no_eval and dataset.test:

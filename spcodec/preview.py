@@ -29,8 +29,9 @@ def attach_preview(scene: bytes, preview: bytes, takeover_layer: int,
     wrapped = is_gzip(scene)
     inner, small = _whole_file(scene, "the scene"), _whole_file(preview, "the preview")
     header = read_header(inner, DEFAULT_LIMITS)
-    decode_layers(small)  # a preview that does not decode is refused before anything is written
-    if any(sec.type == SectionType.PREVIEW for sec in read_header(small, DEFAULT_LIMITS).sections):
+    # a preview that does not decode is refused before anything is written
+    small_header = decode_layers(small).header
+    if any(sec.type == SectionType.PREVIEW for sec in small_header.sections):
         # in any layer: refuses an embedded file with a PREVIEW section anywhere
         raise UsageError("the preview has a preview of its own; a preview cannot nest")
     if not 0 <= takeover_layer < len(header.layers):

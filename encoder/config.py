@@ -518,7 +518,9 @@ class EncoderConfig:
     patch: PatchConfig = field(default_factory=PatchConfig)
     #: Seed of every random choice (k-NN sampling, K-means, codebook training).
     seed: int = 0
-    #: Worker processes for refinement (None: the available cores).
+    #: Worker processes for refinement (None: the available cores). How the work runs, not what
+    #: it makes (refinement gives the same clusters for any count), so it is left out of
+    #: :meth:`to_json`: the file's metadata and a checkpoint's fingerprint do not depend on it.
     n_jobs: int | None = None
     #: False encodes every Gaussian as patch (the baseline without structure).
     use_sketch: bool = True
@@ -574,5 +576,8 @@ class EncoderConfig:
                               blur_variance=self.blur_variance)
 
     def to_json(self) -> dict:
-        """Plain JSON-ready settings (stored in the file's metadata)."""
-        return dataclasses.asdict(self)
+        """Plain JSON-ready settings (stored in the file's metadata and fingerprinting a
+        checkpoint), without ``n_jobs``: the same settings on more workers make the same file."""
+        settings = dataclasses.asdict(self)
+        del settings["n_jobs"]
+        return settings

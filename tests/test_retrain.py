@@ -377,6 +377,21 @@ def test_distillation_renders_with_the_configured_low_pass(scene):
     assert sharp.shape == soft.shape and not torch.allclose(sharp, soft, atol=1e-3)
 
 
+def test_a_checkpoint_resumes_with_another_worker_count(tmp_path, scene):
+    """``n_jobs`` says how refinement runs, not what it makes: an encode stopped with one worker
+    resumes with two (another machine, say) and writes the bytes of an uninterrupted run, whose
+    metadata does not record the count either."""
+    config = retrain_config(iterations=30)
+    whole = encode(scene, dataclasses.replace(config, n_jobs=1)).data
+    control = RunControl(device="cpu", checkpoint=tmp_path / "s.spc.ckpt", checkpoint_every=10)
+    control.on_step = lambda stage, report: control.stop.set() if report.step == 12 else None
+    with pytest.raises(Interrupted):
+        encode(scene, dataclasses.replace(config, n_jobs=1), control=control)
+    resumed = encode(scene, dataclasses.replace(config, n_jobs=2), control=RunControl(
+        device="cpu", checkpoint=control.checkpoint, resume=True))
+    assert resumed.data == whole
+
+
 # ------------------------------------------------------------------------------- datasets
 def test_dataset_mode_trains_on_train_views_and_reports_test_psnr(tmp_path, scene):
     train = sample_views(scene, 6, resolution=(64, 48), split="train")

@@ -79,6 +79,8 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
     config = (config or EncoderConfig()).seeded()
     validate_input(cloud)
     config = with_position_bits(config, cloud)
+    # settled once, so the file's metadata and a checkpoint's fingerprint name the low-pass used
+    config = dataclasses.replace(config, blur_variance=config.low_pass(dataset is not None))
     if dataset is not None and config.retrain is None:
         raise UsageError("a dataset is only used for retraining: drop it or enable retraining")
     try:
@@ -170,16 +172,18 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
 
 def judge(data: bytes, original: GaussianCloud, config: EncoderConfig,
           dataset: str | Path | None, control: RunControl | None) -> dict:
-    """Quality of the written file as ``spcodec eval`` measures it with its defaults: against the
-    dataset's test images, or against renders of the original at the held-out sampled views
-    and their close-ups (with the encode's ``up`` and ``antialiased``), so the two commands
+    """Quality of the written file as ``spcodec eval`` measures it: against the dataset's test
+    images at the low-pass retraining used (``eval --blur-variance`` gives the same figure), or
+    against renders of the original at the held-out sampled views and their close-ups (with
+    the encode's ``up`` and ``antialiased``, eval's defaults otherwise), so the two commands
     report the same figures."""
     device = control.device if control is not None else "auto"
     decoded = decode_layers(data).cloud
     if dataset is not None:
+        low_pass = config.low_pass(dataset=True)  # the one it trained with
         report = evaluate_against_dataset(decoded, Path(dataset), EvalConfig(
-            downscale=config.retrain.downscale, device=device))
-        against = f"the test images of {dataset}"
+            downscale=config.retrain.downscale, device=device, blur_variance=low_pass))
+        against = f"the test images of {dataset} (low-pass {low_pass:g} px^2)"
     else:
         report = evaluate_against_reference(decoded, original, EvalConfig(
             device=device, up=config.up, antialiased=config.antialiased))

@@ -74,7 +74,7 @@ def prepare_targets(cloud: GaussianCloud, config: EncoderConfig, dataset: str | 
     stage = progress("targets", None)
     device = resolve_device(control.device)
     targets = build_targets(cloud, config, dataset, device)
-    settings = config.render_settings(targets.background)
+    settings = config.render_settings(targets.background, targets.mode == "dataset")
     checked = time.perf_counter()
     psnr = check_targets(cloud, targets, settings, device, dataset)
     per_render = (time.perf_counter() - checked) / max(len(targets.views), 1)
@@ -205,7 +205,9 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
         retrain = dataclasses.replace(retrain, snap_start=1.0)  # rows must stay put
         train_stats["nested_layers"] = np.cumsum([len(g) for g in groups]).tolist()
     stage = RetrainStage(retrain, targets, writer.decoded_sketch(), encoder, config.seed,
-                         control, checkpointer, settings=config.render_settings(targets.background))
+                         control, checkpointer,
+                         settings=config.render_settings(targets.background,
+                                                         targets.mode == "dataset"))
     if layer_of is not None:
         stage.visible = prefix_schedule(train_stats["nested_layers"], config.seed,
                                         retrain.nested_full_share)

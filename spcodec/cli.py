@@ -85,8 +85,9 @@ the encoder; a test keeps them equal."""
 RETRAIN_DEFAULTS = {"iterations": 3000, "finish_iterations": 600, "views": 96, "resolution": 400,
                     "close_views": 96, "nested_full_share": 0.75}
 """``RetrainConfig`` defaults shown by --help (the same test keeps them equal)."""
-VIEWER_BLUR_VARIANCE = 0.075
-"""``encoder.config.VIEWER_BLUR_VARIANCE``, the default of --blur-variance (the same test)."""
+VIEWER_BLUR_VARIANCE, DATASET_BLUR_VARIANCE = 0.075, 0.3
+"""``encoder.config.VIEWER_BLUR_VARIANCE`` and ``DATASET_BLUR_VARIANCE``, the defaults of encode's
+--blur-variance without and with --dataset; the second is also eval's (the same test)."""
 DEVICE_HELP = ("auto: CUDA when torch sees a GPU (rendered by gsplat when installed, else by the "
                "torch renderer), else the CPU (default: %(default)s)")
 """--device of encode and of the commands that render: one device rule (resolve_device)."""
@@ -500,9 +501,12 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
     p.add_argument("--antialiased", action="store_true",
                    help="render with Mip-Splatting's antialiased opacity (default: off)")
     p.add_argument("--blur-variance", type=Bounded(float, 0), default=None, metavar="PX2",
-                   help="the screen-space low-pass (pixels^2) retraining and pruning render with; "
-                   "match the viewer the file is for: 0.075 is PlayCanvas's, 0.3 INRIA's and "
-                   f"gsplat's: %(type)s (default: {VIEWER_BLUR_VARIANCE})")
+                   help="the screen-space low-pass (pixels^2) retraining and pruning render "
+                   "with, and with --dataset the test PSNR it reports: 0.075 is PlayCanvas's, "
+                   "0.3 INRIA's and gsplat's: %(type)s (default: "
+                   f"{VIEWER_BLUR_VARIANCE}, the viewer's, when distilling; "
+                   f"{DATASET_BLUR_VARIANCE} with --dataset, the one its images' model "
+                   "trained with)")
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
                    help=DEVICE_HELP)
     p.add_argument("--threads", type=Bounded(int, 1, 1024), default=None, metavar="N",
@@ -718,6 +722,10 @@ def _add_eval(p: argparse.ArgumentParser) -> None:
     p.add_argument("--closeup-resolution", type=Bounded(int, 8, 8192), default=800,
                    metavar="PIXELS", help="side of the close-up views: %(type)s (default: "
                    "%(default)s)")
+    p.add_argument("--blur-variance", type=Bounded(float, 0), default=DATASET_BLUR_VARIANCE,
+                   metavar="PX2", help="the screen-space low-pass (pixels^2) both sides render "
+                   "with: 0.3 is INRIA's, with which published test PSNR is measured, 0.075 "
+                   "PlayCanvas's: %(type)s (default: %(default)s)")
     _add_view_options(p)
 
 
@@ -735,7 +743,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     config = EvalConfig(views=args.views, resolution=args.resolution, downscale=args.downscale,
                         device=args.device, up=args.up, antialiased=args.antialiased,
                         save_renders=save, closeups=args.closeups,
-                        closeup_resolution=args.closeup_resolution)
+                        closeup_resolution=args.closeup_resolution,
+                        blur_variance=args.blur_variance)
     model = load_model(args.input, args.max_layer)
     if args.dataset:
         report = evaluate_against_dataset(model, Path(args.dataset), config)

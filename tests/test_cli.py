@@ -310,6 +310,7 @@ def test_help_gives_every_option_its_default_and_range():
 def test_help_defaults_match_the_encoder():
     from spcodec.cli import (
         CHECKPOINT_EVERY,
+        DATASET_BLUR_VARIANCE,
         PATCH_LAYERS_DEFAULT,
         RETRAIN_DEFAULTS,
         RETRAINED_PATCH_LAYERS,
@@ -318,8 +319,13 @@ def test_help_defaults_match_the_encoder():
     from spcodec.encoder import config
     from spcodec.encoder.config import EncoderConfig, PatchConfig, RetrainConfig
     from spcodec.encoder.retrain import RunControl
+    from spcodec.imaging.evaluate import EvalConfig
+    from spcodec.imaging.render.settings import BLUR_VARIANCE
     assert PATCH_LAYERS_DEFAULT == PatchConfig().layers
-    assert VIEWER_BLUR_VARIANCE == config.VIEWER_BLUR_VARIANCE == EncoderConfig().blur_variance
+    assert VIEWER_BLUR_VARIANCE == config.VIEWER_BLUR_VARIANCE == \
+        EncoderConfig().low_pass(dataset=False)
+    assert DATASET_BLUR_VARIANCE == config.DATASET_BLUR_VARIANCE == \
+        EncoderConfig().low_pass(dataset=True) == EvalConfig().blur_variance == BLUR_VARIANCE
     assert RETRAINED_PATCH_LAYERS == config.RETRAINED_PATCH_LAYERS
     assert CHECKPOINT_EVERY == RunControl().checkpoint_every
     defaults = RetrainConfig()

@@ -35,7 +35,12 @@ from spcodec.encoder.retrain import RunControl
 from spcodec.encoder.stages import SceneWriter
 from spcodec.errors import Interrupted, UsageError
 from spcodec.imaging.cameras import Camera
-from spcodec.imaging.evaluate import DatasetMismatchWarning, EvalConfig, evaluate_against_reference
+from spcodec.imaging.evaluate import (
+    DatasetMismatchWarning,
+    EvalConfig,
+    evaluate_against_dataset,
+    evaluate_against_reference,
+)
 from spcodec.imaging.render import RenderSettings
 from spcodec.imaging.views import sample_views
 from spcodec.sections import parse_codebooks
@@ -377,6 +382,25 @@ def test_distillation_renders_with_the_configured_low_pass(scene):
     assert sharp.shape == soft.shape and not torch.allclose(sharp, soft, atol=1e-3)
 
 
+def test_the_low_pass_follows_the_targets_unless_told(tmp_path, scene):
+    """Distillation renders at the viewer's 0.075 px^2, a dataset's images train at INRIA's 0.3
+    (the low-pass their model was made with), and ``blur_variance`` overrides both."""
+    from spcodec.encoder.prune_retrain import prepare_targets
+    from spcodec.encoder.stages import silent
+
+    train = sample_views(scene, 3, resolution=(32, 24), split="train")
+    write_transforms_dataset(tmp_path / "data", scene, train, train[:1])
+
+    def low_pass(dataset, blur):
+        config = dataclasses.replace(retrain_config(), blur_variance=blur)
+        return prepare_targets(scene, config, dataset, RunControl(device="cpu"), silent,
+                               {}).settings.blur_variance
+
+    data = tmp_path / "data"
+    assert (low_pass(None, None), low_pass(data, None)) == (0.075, 0.3)
+    assert (low_pass(None, 0.2), low_pass(data, 0.2)) == (0.2, 0.2)
+
+
 def test_a_checkpoint_resumes_with_another_worker_count(tmp_path, scene):
     """``n_jobs`` says how refinement runs, not what it makes: an encode stopped with one worker
     resumes with two (another machine, say) and writes the bytes of an uninterrupted run, whose
@@ -402,6 +426,11 @@ def test_dataset_mode_trains_on_train_views_and_reports_test_psnr(tmp_path, scen
         result = encode(scene, retrain_config(), dataset=tmp_path / "data")
     quality = result.stats["quality"]
     assert quality["views"] == 2 and quality["width"] == 64 and "test images" in quality["against"]
+    # trained and judged at one low-pass, INRIA's (the dataset's model's), as eval would judge
+    assert quality["against"].endswith("(low-pass 0.3 px^2)")
+    again = evaluate_against_dataset(spcodec.decode_layers(result.data).cloud, tmp_path / "data",
+                                     EvalConfig(device="cpu"))
+    assert again.psnr == pytest.approx(quality["psnr"], abs=1e-3)
     # learned from the images: at these 64x48 views the viewer's sharper low-pass (0.075 px^2)
     # leaves the synthetic scene's finest Gaussians aliased, so judge the gain, not a level
     stats = result.stats["retrain"]

@@ -22,7 +22,7 @@ if TYPE_CHECKING:  # the renderer loads torch; the configuration must not
 DirectionMetric = Literal["axis", "signed"]
 """How categorization compares principal axes (see ``categorize.direction_distance``)."""
 
-PruneMethod = Literal["importance", "uniform"]
+PruneMethod = Literal["importance", "sampled", "uniform"]
 """Which patch Gaussians survive pruning (see :mod:`.prune`)."""
 
 

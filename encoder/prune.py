@@ -1,5 +1,7 @@
-"""Which patch Gaussians survive pruning: a uniform random sample (the paper's) or the most
-important by blend weight (LightGaussian, Reduced-3DGS).
+"""Which patch Gaussians survive pruning: a uniform random sample (the paper's), the most
+important by blend weight (LightGaussian, Reduced-3DGS), or a sample drawn in proportion to blend
+weight, between the two: the large Gaussians a picture rests on are nearly always kept, and a
+share of the small ones that carry fine texture survives with them, which ranking drops first.
 
 Both keep ``round(n / factor)`` Gaussians (at least one when there are any), returned as sorted
 indices so the survivors keep their input order.
@@ -31,13 +33,28 @@ def prune_by_importance(weights: np.ndarray, keep: int) -> np.ndarray:
     return np.sort(order[:keep]).astype(np.int64)
 
 
+def prune_sampled(weights: np.ndarray, keep: int, seed: int) -> np.ndarray:
+    """``keep`` indices drawn without replacement with probability proportional to ``weights``
+    (seeded; Gumbel top-k: the ``keep`` largest of log weight plus Gumbel noise), sorted. Zero
+    weights come last, in random order."""
+    w = np.asarray(weights, np.float64)
+    rng = np.random.default_rng([seed, 0x5A3D])
+    gumbel = -np.log(-np.log(rng.uniform(np.finfo(np.float64).tiny, 1.0, len(w))))
+    with np.errstate(divide="ignore"):
+        keys = np.where(w > 0, np.log(np.where(w > 0, w, 1.0)) + gumbel, -np.inf)
+    order = np.lexsort((gumbel, keys))[::-1]  # largest key first; zero weights by their noise
+    return np.sort(order[:keep]).astype(np.int64)
+
+
 def select(method: PruneMethod, n: int, keep: int, seed: int,
            weights: np.ndarray | None = None) -> np.ndarray:
     """The survivors by ``method`` (weights are required for "importance")."""
     if method == "uniform":
         return prune_uniform(n, keep, seed)
-    if method == "importance":
+    if method in ("importance", "sampled"):
         if weights is None:
-            raise ValueError("importance pruning needs blend weights")
-        return prune_by_importance(weights, keep)
-    raise ValueError(f"unknown prune method {method!r}: use 'importance' or 'uniform'")
+            raise ValueError(f"{method} pruning needs blend weights")
+        return prune_by_importance(weights, keep) if method == "importance" else \
+            prune_sampled(weights, keep, seed)
+    raise ValueError(f"unknown prune method {method!r}: use 'importance', 'sampled' or "
+                     "'uniform'")

@@ -454,10 +454,10 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
     size.add_argument("--patch-downsample", type=Bounded(float, 1), metavar="N",
                       help="keep 1/N of the patch Gaussians: %(type)s (default: set by --preset: "
                       "lowrate 8, balanced 4, highrate 2)")
-    size.add_argument("--prune", choices=["importance", "uniform"], default=None,
+    size.add_argument("--prune", choices=["importance", "sampled", "uniform"], default=None,
                       help="which patch Gaussians survive: the largest blend weight over the "
-                      "training views, or uniformly at random as in the paper (default: "
-                      "importance)")
+                      "training views, a random sample in proportion to it, or uniformly at "
+                      "random as in the paper (default: importance)")
 
     train = p.add_argument_group("retraining")
     train.add_argument("--no-retrain", action="store_true",

@@ -8,13 +8,19 @@ import math
 import numpy as np
 import pytest
 import torch
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from spcodec.encoder.config import PatchConfig
 from spcodec.encoder.kmeans import nearest
 from spcodec.encoder.patch import PatchEncoder, quantized_cloud
-from spcodec.encoder.prune import kept_count, prune_by_importance, prune_uniform, select
+from spcodec.encoder.prune import (
+    kept_count,
+    prune_by_importance,
+    prune_sampled,
+    prune_uniform,
+    select,
+)
 from spcodec.encoder.quantaware import (
     CodebookGaussians,
     Snap,
@@ -109,6 +115,31 @@ def test_pruning_picks_the_heaviest_or_a_seeded_sample():
         select("importance", 10, 5, 0)
     with pytest.raises(ValueError, match="unknown prune method"):
         select("random", 10, 5, 0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(0, 1e3, allow_subnormal=False), min_size=1, max_size=80),
+       st.data(), st.integers(0, 2**31))
+def test_sampled_pruning_is_a_seeded_sample_that_prefers_weight(weights, data, seed):
+    """Distinct sorted indices, the same for a seed; every positive weight before any zero."""
+    w = np.array(weights)
+    keep = data.draw(st.integers(0, len(w)))
+    a = prune_sampled(w, keep, seed)
+    assert np.array_equal(a, prune_sampled(w, keep, seed)) and len(a) == keep
+    assert np.all(np.diff(a) > 0) and (keep == 0 or 0 <= a[0] <= a[-1] < len(w))
+    assert np.count_nonzero(w[a] > 0) == min(keep, np.count_nonzero(w > 0))
+
+
+def test_sampled_pruning_draws_in_proportion_to_weight():
+    """Over many seeds a Gaussian with three times the weight survives about three times as
+    often when few are kept, and none of them is certain, unlike ranking."""
+    w = np.r_[np.full(10, 3.0), np.full(90, 1.0)]
+    counts = np.zeros(len(w))
+    for seed in range(400):
+        counts[prune_sampled(w, 5, seed)] += 1
+    heavy, light = counts[:10].mean(), counts[10:].mean()
+    assert 2.4 < heavy / light < 3.4 and counts[:10].max() < 400
+    assert sorted(select("sampled", 100, 5, 0, w)) == sorted(prune_sampled(w, 5, 0))
 
 
 # ------------------------------------------------------------------------ quantization-aware

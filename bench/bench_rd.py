@@ -26,6 +26,10 @@ Methods (the paper's section "Comparison Methods"):
   line runs through the ``spz4`` point, so the default shares leave the quarter out;
 * ``pr-target``: Prune&Retrain aimed at each ``--pr-fractions`` of SPZ's bytes (the quarter
   included), the same size control as ``sp-target``: the two curves compare at equal bytes.
+* ``spu-target``, ``sps-target``: S&P++ with the patch pruned uniformly (``--prune uniform``)
+  or sampled in proportion to blend weight (``--prune sampled``) at the ``--pr-fractions``: the
+  sketch of ``sp-target`` with the pruning rule of ``pr-target`` or one between the two, which
+  tells sketch and pruning rule apart where Prune&Retrain wins (RESULTS 13.18).
 
 Every encode runs as its own ``spcodec encode`` process under ``/usr/bin/time`` (peak memory
 per run) with ``--stats`` (time per stage). With ``--encoded DIR`` a point whose file
@@ -36,7 +40,8 @@ one PSNR-vs-size figure per scene (log size axis) into ``docs/results/``. matplo
 for the plots only (install by hand).
 
     python bench/bench_rd.py --json rd.json [--scenes fourth_st donut guitar kacytran lego]
-        [--methods sp pr noretrain spz sog spz4 sp-target pr-target] [--factors 2 4 8 16]
+        [--methods sp pr noretrain spz sog spz4 sp-target pr-target spu-target sps-target]
+        [--factors 2 4 8 16]
         [--spz-fractions 0.0625 0.125 0.5] [--pr-fractions 0.0625 0.125 0.25 0.5]
         [--iterations 3000] [--encoded DIR]
         [--lego-model /path/lego.ply --lego-downscale 4] [--no-viewer]
@@ -63,14 +68,19 @@ from bench_quality import SCENES, spz_round_trip  # bench/ is on sys.path
 from scenes import data_dir
 
 LEGO_DATASET = "nerf_synthetic_lego"
-METHODS = ("sp", "pr", "noretrain", "spz", "sog", "spz4", "sp-target", "pr-target")
-SIZED = ("spz4", "sp-target", "pr-target")
+METHODS = ("sp", "pr", "noretrain", "spz", "sog", "spz4", "sp-target", "pr-target", "spu-target",
+           "sps-target")
+SIZED = ("spz4", "sp-target", "pr-target", "spu-target", "sps-target")
+PRUNE_RULE = {"spu-target": "uniform", "sps-target": "sampled"}
+"""S&P++ curves with another pruning rule than the default's."""
 """Methods aimed at a share of SPZ's bytes: they need the scene's ``spz`` row first."""
 LABELS = {"sp": "S&P++ (retrained)", "pr": "Prune&Retrain", "noretrain": "no-retrain presets",
           "spz": "SPZ", "sog": "SOG", "spz4": "S&P++ at SPZ/4", "original": "original",
           # rows added by hand from single encodes (docs/RESULTS.md says which)
           "sp-highrate": "S&P++, highrate codebooks", "sp-target": "S&P++ --target-size",
           "pr-target": "Prune&Retrain --target-size",
+          "spu-target": "S&P++ --target-size --prune uniform",
+          "sps-target": "S&P++ --target-size --prune sampled",
           "nosketch-target": "no sketch, importance pruning, --target-size (13.18)",
           "sp-target-uncapped": "S&P++ --target-size, sketch not capped (before 13.6)",
           "spz4-uncapped": "S&P++ at SPZ/4, sketch not capped (before 13.6)",
@@ -152,6 +162,8 @@ def encode_args(method: str, param, setup: dict, args) -> list[str]:
         common += ["--blur-variance", str(setup["blur_variance"])]
     if method in ("pr", "pr-target"):
         common += ["--no-sketch", "--prune", "uniform"]
+    if method in PRUNE_RULE:
+        common += ["--prune", PRUNE_RULE[method]]
     return common
 
 
@@ -206,7 +218,8 @@ def sweep(args) -> None:
         points = {"sp": args.factors, "pr": args.factors,
                   "noretrain": ["lowrate", "balanced", "highrate", "transparent"],
                   "spz": ["-"], "sog": ["-"], "spz4": ["-"], "sp-target": args.spz_fractions,
-                  "pr-target": args.pr_fractions}
+                  "pr-target": args.pr_fractions,
+                  **{method: args.pr_fractions for method in PRUNE_RULE}}
         for method in args.methods:
             for param in points[method]:
                 if (name, method, str(param)) in done:
@@ -279,7 +292,9 @@ def plot(args) -> None:
     styles = {"sp": ("o-", "C0"), "pr": ("s--", "C1"), "noretrain": ("^:", "C2"),
               "spz": ("*", "C3"), "sog": ("X", "C5"), "spz4": ("P", "C4"), "original": ("D", "k"),
               "sp-target": ("o-", "C6"), "sp-target-uncapped": ("x:", "C7"),
-              "pr-target": ("s--", "C1"), "nosketch-target": ("D", "C9"),
+              "pr-target": ("s--", "C1"), "spu-target": ("v-.", "m"),
+              "sps-target": ("<-.", "y"),
+              "nosketch-target": ("D", "C9"),
               "spz4-uncapped": ("x", "C4"), "spz4-p12": ("P", "C8")}
     for name in dict.fromkeys(r["scene"] for r in rows):
         panels = [(key, title) for key, title in PANELS
@@ -321,7 +336,7 @@ def main() -> None:
     ap.add_argument("--spz-fractions", nargs="+", type=float, default=[1 / 16, 1 / 8, 1 / 2],
                     help="sp-target: the shares of SPZ's bytes to aim at (a quarter is spz4's)")
     ap.add_argument("--pr-fractions", nargs="+", type=float, default=[1 / 16, 1 / 8, 1 / 4, 1 / 2],
-                    help="pr-target: the shares of SPZ's bytes to aim at")
+                    help="pr-target, spu-target and sps-target: the shares of SPZ's bytes to aim at")
     ap.add_argument("--encoded", type=Path, help="judge DIR/SCENE-METHOD-POINT.spc (with its "
                     ".stats.json) where it exists rather than encoding that point")
     ap.add_argument("--iterations", type=int, default=3000)

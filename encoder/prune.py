@@ -3,7 +3,7 @@ important by blend weight (LightGaussian, Reduced-3DGS), or a sample drawn in pr
 weight, between the two: the large Gaussians a picture rests on are nearly always kept, and a
 share of the small ones that carry fine texture survives with them, which ranking drops first.
 
-Both keep ``round(n / factor)`` Gaussians (at least one when there are any), returned as sorted
+All three keep ``round(n / factor)`` Gaussians (at least one when there are any), returned as sorted
 indices so the survivors keep their input order.
 """
 
@@ -48,7 +48,7 @@ def prune_sampled(weights: np.ndarray, keep: int, seed: int) -> np.ndarray:
 
 def select(method: PruneMethod, n: int, keep: int, seed: int,
            weights: np.ndarray | None = None) -> np.ndarray:
-    """The survivors by ``method`` (weights are required for "importance")."""
+    """The survivors by ``method`` (weights are required for "importance" and "sampled")."""
     if method == "uniform":
         return prune_uniform(n, keep, seed)
     if method in ("importance", "sampled"):

@@ -71,9 +71,12 @@ LEGO_DATASET = "nerf_synthetic_lego"
 METHODS = ("sp", "pr", "noretrain", "spz", "sog", "spz4", "sp-target", "pr-target", "spu-target",
            "sps-target")
 SIZED = ("spz4", "sp-target", "pr-target", "spu-target", "sps-target")
-PRUNE_RULE = {"spu-target": "uniform", "sps-target": "sampled"}
-"""S&P++ curves with another pruning rule than the default's."""
 """Methods aimed at a share of SPZ's bytes: they need the scene's ``spz`` row first."""
+PRUNE_RULE = {"pr": "uniform", "pr-target": "uniform", "spu-target": "uniform",
+              "sps-target": "sampled"}
+"""Methods with another pruning rule than the encoder's default (``--prune``)."""
+NO_SKETCH = ("pr", "pr-target")
+"""Prune&Retrain: every Gaussian patch (``--no-sketch``)."""
 LABELS = {"sp": "S&P++ (retrained)", "pr": "Prune&Retrain", "noretrain": "no-retrain presets",
           "spz": "SPZ", "sog": "SOG", "spz4": "S&P++ at SPZ/4", "original": "original",
           # rows added by hand from single encodes (docs/RESULTS.md says which)
@@ -160,8 +163,8 @@ def encode_args(method: str, param, setup: dict, args) -> list[str]:
         common += ["--dataset", str(setup["dataset"]), "--downscale", str(setup["downscale"])]
     if "blur_variance" in setup:
         common += ["--blur-variance", str(setup["blur_variance"])]
-    if method in ("pr", "pr-target"):
-        common += ["--no-sketch", "--prune", "uniform"]
+    if method in NO_SKETCH:
+        common += ["--no-sketch"]
     if method in PRUNE_RULE:
         common += ["--prune", PRUNE_RULE[method]]
     return common
@@ -218,8 +221,8 @@ def sweep(args) -> None:
         points = {"sp": args.factors, "pr": args.factors,
                   "noretrain": ["lowrate", "balanced", "highrate", "transparent"],
                   "spz": ["-"], "sog": ["-"], "spz4": ["-"], "sp-target": args.spz_fractions,
-                  "pr-target": args.pr_fractions,
-                  **{method: args.pr_fractions for method in PRUNE_RULE}}
+                  "pr-target": args.pr_fractions, "spu-target": args.pr_fractions,
+                  "sps-target": args.pr_fractions}
         for method in args.methods:
             for param in points[method]:
                 if (name, method, str(param)) in done:

@@ -40,8 +40,7 @@ def prune_sampled(weights: np.ndarray, keep: int, seed: int) -> np.ndarray:
     w = np.asarray(weights, np.float64)
     rng = np.random.default_rng([seed, 0x5A3D])
     gumbel = -np.log(-np.log(rng.uniform(np.finfo(np.float64).tiny, 1.0, len(w))))
-    with np.errstate(divide="ignore"):
-        keys = np.where(w > 0, np.log(np.where(w > 0, w, 1.0)) + gumbel, -np.inf)
+    keys = np.where(w > 0, np.log(np.where(w > 0, w, 1.0)) + gumbel, -np.inf)
     order = np.lexsort((gumbel, keys))[::-1]  # largest key first; zero weights by their noise
     return np.sort(order[:keep]).astype(np.int64)
 
@@ -49,12 +48,13 @@ def prune_sampled(weights: np.ndarray, keep: int, seed: int) -> np.ndarray:
 def select(method: PruneMethod, n: int, keep: int, seed: int,
            weights: np.ndarray | None = None) -> np.ndarray:
     """The survivors by ``method`` (weights are required for "importance" and "sampled")."""
+    if method not in ("importance", "sampled", "uniform"):
+        raise ValueError(f"unknown prune method {method!r}: use 'importance', 'sampled' or "
+                         "'uniform'")
     if method == "uniform":
         return prune_uniform(n, keep, seed)
-    if method in ("importance", "sampled"):
-        if weights is None:
-            raise ValueError(f"{method} pruning needs blend weights")
-        return prune_by_importance(weights, keep) if method == "importance" else \
-            prune_sampled(weights, keep, seed)
-    raise ValueError(f"unknown prune method {method!r}: use 'importance', 'sampled' or "
-                     "'uniform'")
+    if weights is None:
+        raise ValueError(f"{method} pruning needs blend weights")
+    if method == "sampled":
+        return prune_sampled(weights, keep, seed)
+    return prune_by_importance(weights, keep)

@@ -140,10 +140,7 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
                                      config, prepared, weights, dataset, control, progress,
                                      times)
         patch, rows, extra = choice.encoding, choice.rows, choice.stats
-        prefix = extra.get("retrain", {}).get("prefix_psnr")
-        if prefix:  # for a viewer choosing where to stop ([R-71]'s "stats")
-            writer = dataclasses.replace(writer, metadata={**writer.metadata, "stats": {
-                "prefix_psnr": prefix, "prefix_psnr_against": "training views"}})
+        writer = writer.with_prefix_psnr(extra.get("retrain", {}).get("prefix_psnr"))
         data = _write(writer, patch, progress, times)
     patch_idx = sketch.patch_idx[rows]
     source = np.concatenate(sketch.sources + [patch_idx[o] for o in patch.order]).astype(np.int64) \

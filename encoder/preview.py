@@ -60,7 +60,7 @@ def encode_with_preview(cloud: GaussianCloud, config: EncoderConfig, preview_siz
         preview = encode(cloud, preview_config, progress, source_name, dataset, preview_control)
     except UsageError as exc:  # rate control speaks of "the target": say which one
         raise UsageError(f"the preview (--preview-size): {exc}") from None
-    # rate control may land a small file a little over its target: the scene gets what is left
+    # the preview usually comes in a little under its target: the scene gets what is left
     scene_config = config if rest is None else dataclasses.replace(
         config, target_size=config.target_size - len(preview.data) - PREVIEW_OVERHEAD)
     scene = encode(cloud, scene_config, progress, source_name, dataset, control)

@@ -22,9 +22,11 @@ the one free knob is how many patch Gaussians survive pruning:
    With snapping this happens when snapping starts, on the file its codebooks make, so most
    training steps come after the drop; otherwise after retraining and quantization.
 4. **Trim**: the finish moves codebook entries and indices, so the final file can grow past the
-   target; then the least important Gaussians go until it fits again. A file that comes out
-   under stays so, since dropped Gaussians cannot come back (on the shared scenes at a quarter of
-   SPZ the finish shrank every file, which ended 0.1-2.3 % under: docs/RESULTS.md 13.15).
+   target; then the least important Gaussians go until it fits again, with the per-prefix
+   PSNR table the metadata then records counted in (``SceneWriter.with_prefix_psnr``; without
+   it a small file could end a few bytes over). A file that comes out under stays so, since
+   dropped Gaussians cannot come back (on the shared scenes at a quarter of SPZ the finish shrank
+   every file, which ended 0.1-2.3 % under: docs/RESULTS.md 13.15).
 
 The predicted and actual sizes are both reported.
 """

@@ -7,7 +7,7 @@ file; these types live here, below both, so neither imports the other.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
@@ -73,6 +73,16 @@ class SceneWriter:
 
     def write(self, patch: PatchEncoding | None) -> bytes:
         return build_bitstream(self.scene(patch), self.options)
+
+    def with_prefix_psnr(self, prefix_psnr: list[dict] | None) -> SceneWriter:
+        """This writer with the file's per-prefix PSNR on the training views in its metadata
+        (``stats.prefix_psnr``: what a viewer reads to choose where to stop, [R-71], and what
+        picks a preview's takeover layer); itself when there is no table. Rate control sizes the
+        final file with the writer this returns, so the table's bytes are inside the target."""
+        if not prefix_psnr:
+            return self
+        return replace(self, metadata={**self.metadata, "stats": {
+            "prefix_psnr": prefix_psnr, "prefix_psnr_against": "training views"}})
 
     def decoded_sketch(self) -> GaussianCloud:
         """The sketch exactly as a decoder will see it (layer 0 of a sketch-only file)."""

@@ -257,27 +257,25 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
     importance = ranked if layer_of is None else \
         layer_priority(ranked, layers_of(importance, layers), layers)
     encoding = encoder.layer(trained, quantized, importance)
-    if plan is not None and len(writer.write(encoding)) > config.target_size:
-        # the finish grew it: trim the least important
-        top = _rows_that_fit(config.target_size, writer, encoder, trained, quantized, importance)
-        trained, quantized, kept = trained.subset(top), quantized.subset(top), kept[top]
-        importance = importance[top]
-        encoding = encoder.layer(trained, quantized, importance)
-        stats["rate"]["trimmed"] = True
-    while True:  # what each prefix of the file shows on the training views, in its metadata
+    # Trim the least important until the file fits as written: the finish can grow it, and the
+    # metadata then records each prefix's PSNR, scored on what is left (without that table in
+    # the fit, kacytran at SPZ/16 came out 23 bytes over: docs/RESULTS.md 13.20).
+    prefix, scored = None, False
+    while True:
+        final = writer.with_prefix_psnr(prefix)
+        if plan is not None and len(trained) > 1 and \
+                len(final.write(encoding)) > config.target_size:
+            top = _rows_that_fit(config.target_size, final, encoder, trained, quantized,
+                                 importance)
+            trained, quantized, kept = trained.subset(top), quantized.subset(top), kept[top]
+            importance = importance[top]
+            encoding = encoder.layer(trained, quantized, importance)
+            stats["rate"]["trimmed"] = True
+        elif scored:
+            break
         prefix = _prefix_psnr(stage, trained, quantized, encoding.order) \
             if len(encoding.layers) > 1 else None
-        final = writer.with_prefix_psnr(prefix)
-        if plan is None or len(trained) <= 1 or \
-                len(final.write(encoding)) <= config.target_size:
-            break
-        # the table took the last bytes (kacytran at SPZ/16 came out 23 bytes over before this,
-        # docs/RESULTS.md 13.20): fit again with it, then score the prefixes of what is left
-        top = _rows_that_fit(config.target_size, final, encoder, trained, quantized, importance)
-        trained, quantized, kept = trained.subset(top), quantized.subset(top), kept[top]
-        importance = importance[top]
-        encoding = encoder.layer(trained, quantized, importance)
-        stats["rate"]["trimmed"] = True
+        scored = True
     if prefix:
         train_stats["prefix_psnr"] = prefix
     gain = train_stats.get("psnr_finished", train_stats["psnr_quantized"]) \

@@ -8,6 +8,10 @@ section 14): ``Range: bytes=a-b``, ``bytes=a-`` and ``bytes=-n`` get ``206 Parti
 with ``Content-Range: bytes */size``; several ranges in one request, or another unit, are ignored
 and the whole file is sent (both allowed by the RFC).
 
+Odd requests get a status, never a traceback: a request target that names no file the OS could
+open (a NUL byte, a name too long for it, a link loop, a component that is not a folder) is 404;
+one that does not parse is 400; a client that hangs up mid-reply is let go quietly.
+
 ``throttle`` paces the scene files (not the viewer's own code) to a given link speed, shared by
 every connection as one link would be, so a viewer's progress can be watched and measured as on a
 slow connection. The server binds the loopback interface unless told otherwise: it is a tool for
@@ -43,7 +47,7 @@ _TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript", ".mjs":
           ".json": "application/json", ".wasm": "application/wasm", ".css": "text/css",
           ".spc": "application/octet-stream", ".ply": "application/octet-stream",
           ".glb": "model/gltf-binary", ".png": "image/png", ".map": "application/json"}
-_RANGE = re.compile(r"^\s*(\d*)\s*-\s*(\d*)\s*$")
+_RANGE = re.compile(r"^\s*([0-9]*)\s*-\s*([0-9]*)\s*$")  # ASCII digits only, as RFC 9110
 
 
 def default_web_root() -> Path:
@@ -58,6 +62,19 @@ def default_web_root() -> Path:
 
 class RangeNotSatisfiable(Exception):
     """The request's byte range cannot be served (answered with 416)."""
+
+
+def _capped(digits: str, cap: int) -> int:
+    """``min(int(digits), cap)`` for a string of ASCII digits of any length.
+
+    A range's numbers come from the client and may have thousands of digits, past what ``int()``
+    converts (Python's digit limit raises ValueError); any number longer than ``cap`` is at least
+    ``cap``, and every use of it here (start past the end, end clipped to it) only needs that.
+    """
+    digits = digits.lstrip("0") or "0"
+    if len(digits) > len(str(cap)):
+        return cap
+    return min(int(digits), cap)
 
 
 def parse_range(header: str | None, size: int) -> tuple[int, int] | None:
@@ -77,13 +94,15 @@ def parse_range(header: str | None, size: int) -> tuple[int, int] | None:
     if not match or not (match.group(1) or match.group(2)):
         raise RangeNotSatisfiable(f"malformed range {header!r}")
     first_text, last_text = match.groups()
+    # numbers are capped at size: a start that large is past the end (416), an end or a suffix
+    # that large means "to the end" / "the whole file"
     if not first_text:  # suffix range: the last n bytes
-        length = int(last_text)
+        length = _capped(last_text, size)
         if length == 0 or size == 0:
             raise RangeNotSatisfiable(f"empty suffix range {header!r}")
         return max(0, size - length), size - 1
-    first = int(first_text)
-    last = int(last_text) if last_text else size - 1
+    first = _capped(first_text, size)
+    last = _capped(last_text, size) if last_text else size - 1
     if last < first:
         raise RangeNotSatisfiable(f"range {header!r} ends before it starts")
     if first >= size:
@@ -142,9 +161,21 @@ class ViewerRequestHandler(BaseHTTPRequestHandler):
         if self.config.log:
             super().log_message(format, *args)
 
+    def handle(self) -> None:
+        """Serve the connection; a client that hangs up (a viewer cancelling a fetch, a closed
+        tab) is no error of the server's, so it ends the connection without a traceback."""
+        try:
+            super().handle()
+        except ConnectionError:
+            self.close_connection = True
+
     # ----------------------------------------------------------------------------- routing
     def _respond(self, send_body: bool) -> None:
-        path = urllib.parse.unquote(urllib.parse.urlsplit(self.path).path)
+        try:
+            path = urllib.parse.unquote(urllib.parse.urlsplit(self.path).path)
+        except ValueError:  # e.g. "http://[x/": urlsplit reads a malformed IPv6 host in it
+            self._refuse(HTTPStatus.BAD_REQUEST, send_body)
+            return
         if path == "/":
             first = next(iter(self.config.scenes))
             query = {"src": SCENE_PREFIX + first}
@@ -158,23 +189,39 @@ class ViewerRequestHandler(BaseHTTPRequestHandler):
             return
         local = self._web_file(path)
         if local is None:
-            self.send_error(HTTPStatus.NOT_FOUND, "not found")
+            self._refuse(HTTPStatus.NOT_FOUND, send_body)
             return
         self._send_file(local, send_body, paced=False)
 
     def _web_file(self, path: str) -> Path | None:
         """The file under the web root that ``path`` names, or None (never outside the root, never
-        a hidden file)."""
+        a hidden file, never a name the OS refuses to look up)."""
         if path.endswith("/"):
             path += "index.html"
         parts = [p for p in path.split("/") if p]
-        if any(p.startswith(".") for p in parts):
+        if any(p.startswith(".") for p in parts) or "\0" in path:
             return None
-        root = self.config.web_root.resolve()
-        candidate = root.joinpath(*parts).resolve() if parts else root
-        if candidate != root and root not in candidate.parents:
+        try:
+            root = self.config.web_root.resolve()
+            candidate = root.joinpath(*parts).resolve() if parts else root
+            if candidate != root and root not in candidate.parents:
+                return None
+            return candidate if candidate.is_file() else None
+        except (OSError, ValueError, RuntimeError):
+            # ENAMETOOLONG, EACCES, ...; ValueError: a NUL byte; RuntimeError: pathlib's
+            # "Symlink loop"
             return None
-        return candidate if candidate.is_file() else None
+
+    def _refuse(self, status: HTTPStatus, send_body: bool) -> None:
+        """A short plain-text error answer that keeps the connection usable. Unlike
+        ``send_error`` it logs one line (the request's, with its status), not two."""
+        body = f"{status.value} {status.phrase}\n".encode()
+        self.send_response(status)
+        self.send_header("Content-Type", "text/plain; charset=utf-8")
+        self.send_header("Content-Length", str(len(body)))
+        self.end_headers()
+        if send_body:
+            self.wfile.write(body)
 
     def _redirect(self, location: str) -> None:
         self.send_response(HTTPStatus.FOUND)
@@ -187,7 +234,7 @@ class ViewerRequestHandler(BaseHTTPRequestHandler):
         try:
             handle = open(path, "rb")
         except OSError:
-            self.send_error(HTTPStatus.NOT_FOUND, "not found")
+            self._refuse(HTTPStatus.NOT_FOUND, send_body)
             return
         with handle:
             size = os.fstat(handle.fileno()).st_size

@@ -1,8 +1,15 @@
-"""`spcodec serve`: byte ranges (206, Content-Range, 416), routing, confinement and pacing."""
+"""`spcodec serve`: byte ranges (206, Content-Range, 416), routing, confinement and pacing, and
+odd requests (huge numbers, NUL bytes, overlong names, hang-ups) answered without a traceback."""
 
 from __future__ import annotations
 
+import ast
+import fnmatch
 import http.client
+import shutil
+import socket
+import struct
+import sys
 import threading
 import time
 import urllib.parse
@@ -15,11 +22,20 @@ from spcodec.cli import main
 from spcodec.errors import UsageError
 from spcodec.serve import RangeNotSatisfiable, make_server, parse_range
 
+from conftest import REPO
+
 SCENE = bytes(range(256)) * 40  # 10,240 distinct-looking bytes
+HUGE = "9" * 5000  # past Python's int() digit limit (4,300)
 
 
 @pytest.fixture(scope="module")
-def server(tmp_path_factory):
+def server_errors() -> list[BaseException]:
+    """What requests to the module's server raised (socketserver prints each as a traceback)."""
+    return []
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory, server_errors):
     """A running server for one scene with a small web folder; yields (host, port)."""
     tmp_path = tmp_path_factory.mktemp("serve")
     scene = tmp_path / "scene.spc"
@@ -31,7 +47,10 @@ def server(tmp_path_factory):
     (web / "src" / "index.js").write_text("export const x = 1;\n")
     (web / ".secret").write_text("hidden")
     (tmp_path / "outside.txt").write_text("outside the web root")
+    (web / "link-out.txt").symlink_to(tmp_path / "outside.txt")
+    (web / "loop").symlink_to(web / "loop")
     srv = make_server([scene], port=0, web_root=web)
+    srv.handle_error = lambda request, address: server_errors.append(sys.exc_info()[1])
     thread = threading.Thread(target=srv.serve_forever, daemon=True)
     thread.start()
     yield srv.server_address[:2]
@@ -46,6 +65,19 @@ def request(address, path, headers=None, method="GET"):
     body = response.read()
     conn.close()
     return response, body
+
+
+def raw_request(address, target: str, headers: str = "") -> tuple[str, bytes]:
+    """Send a GET as raw bytes (http.client refuses some of these targets) and read the answer
+    to its end: (status line, rest). An empty status line: the server hung up without one."""
+    with socket.create_connection(address, timeout=10) as sock:
+        sock.sendall(f"GET {target} HTTP/1.1\r\nHost: x\r\n{headers}Connection: close\r\n\r\n"
+                     .encode("latin-1"))
+        reply = b""
+        while block := sock.recv(65536):
+            reply += block
+    status, _, rest = reply.partition(b"\r\n")
+    return status.decode("latin-1"), rest
 
 
 def test_whole_file_advertises_ranges(server):
@@ -81,6 +113,99 @@ def test_bad_or_unsatisfiable_range_gets_416(server, spec):
     assert response.getheader("Content-Range") == f"bytes */{len(SCENE)}"
 
 
+@pytest.mark.parametrize("spec, status, span", [
+    (f"bytes={HUGE}-", 416, None),                         # starts past the end
+    (f"bytes={HUGE}-{HUGE}9", 416, None),
+    (f"bytes=0-{HUGE}", 206, (0, len(SCENE) - 1)),         # ends past it: the rest of the file
+    (f"bytes=10200-{HUGE}", 206, (10200, len(SCENE) - 1)),
+    (f"bytes=-{HUGE}", 206, (0, len(SCENE) - 1)),          # a suffix longer than the file
+    (f"bytes={'0' * 5000}7-{'0' * 5000}9", 206, (7, 9)),   # leading zeros are still numbers
+])
+def test_range_numbers_of_any_length_are_answered(server, server_errors, spec, status, span):
+    """A 5,000-digit number raised ValueError in int() and the connection closed unanswered."""
+    server_errors.clear()
+    response, body = request(server, "/scenes/scene.spc", {"Range": spec})
+    assert response.status == status and not server_errors
+    if span is None:
+        assert body == b"" and response.getheader("Content-Range") == f"bytes */{len(SCENE)}"
+    else:
+        first, last = span
+        assert response.getheader("Content-Range") == f"bytes {first}-{last}/{len(SCENE)}"
+        assert body == SCENE[first:last + 1]
+
+
+def test_parse_range_caps_huge_numbers_at_the_file():
+    assert parse_range(f"bytes=3-{HUGE}", 10) == (3, 9)
+    assert parse_range(f"bytes=-{HUGE}", 10) == (0, 9)
+    for spec in [f"bytes={HUGE}-", f"bytes={HUGE}-5", f"bytes=-{HUGE}", "bytes=\u0661-"]:
+        with pytest.raises(RangeNotSatisfiable):
+            parse_range(spec, 0 if spec == f"bytes=-{HUGE}" else 10)
+
+
+@pytest.mark.parametrize("target, status", [
+    ("/a%00b", 404),                     # ValueError: embedded null byte
+    ("/viewer/index.html%00", 404),
+    ("/scenes/scene.spc%00", 404),
+    ("/" + "a" * 5000, 404),             # OSError ENAMETOOLONG: one name too long
+    ("/" + "a/" * 2500, 404),            # the whole path too long
+    ("/src/index.js/x", 404),            # ENOTDIR
+    ("/loop", 404), ("/loop/x", 404),    # a link to itself (pathlib: RuntimeError)
+    ("http://[x/", 400),                 # urlsplit's ValueError: an unclosed IPv6 host
+])
+def test_targets_no_file_can_have_get_a_status_not_a_traceback(server, server_errors, target,
+                                                               status):
+    server_errors.clear()
+    line, rest = raw_request(server, target)
+    assert line.split(" ", 2)[:2] == ["HTTP/1.1", str(status)], (line, server_errors)
+    assert not server_errors and b"outside the web root" not in rest
+
+
+def test_an_odd_request_logs_one_line(tmp_path, capsys):
+    """With --log, one line per request (send_error wrote two), and no traceback."""
+    scene = tmp_path / "scene.spc"
+    scene.write_bytes(SCENE)
+    srv = make_server([scene], port=0, web_root=tmp_path, log=True)
+    threading.Thread(target=srv.serve_forever, daemon=True).start()
+    try:
+        for target in ["/a%00b", "/" + "a" * 5000, "/missing.html"]:
+            assert raw_request(srv.server_address[:2], target)[0].startswith("HTTP/1.1 404")
+        assert raw_request(srv.server_address[:2], "/scenes/scene.spc",
+                           f"Range: bytes={HUGE}-\r\n")[0].startswith("HTTP/1.1 416")
+    finally:
+        srv.shutdown()
+        srv.server_close()
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 4 and "Traceback" not in err, err
+    assert [line.split()[-2] for line in err.splitlines()] == ["404", "404", "404", "416"]
+
+
+def test_a_client_that_hangs_up_mid_reply_is_no_error(tmp_path):
+    """A viewer cancelling a fetch resets the connection while the server writes: that raised
+    ConnectionResetError/BrokenPipeError out of the handler, printed as a traceback."""
+    scene = tmp_path / "scene.spc"
+    scene.write_bytes(SCENE)
+    srv = make_server([scene], port=0, throttle_kbps=400, web_root=tmp_path)  # 0.2 s for SCENE
+    errors: list[BaseException] = []
+    done = threading.Event()
+    srv.handle_error = lambda request, address: errors.append(sys.exc_info()[1])
+    close = srv.shutdown_request
+    srv.shutdown_request = lambda request: (close(request), done.set())
+    threading.Thread(target=srv.serve_forever, daemon=True).start()
+    try:
+        sock = socket.create_connection(srv.server_address[:2], timeout=10)
+        sock.sendall(b"GET /scenes/scene.spc HTTP/1.1\r\nHost: x\r\n\r\n")
+        head = b""
+        while b"\r\n\r\n" not in head:  # the headers come at once, the paced body later
+            head += sock.recv(1024)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+        sock.close()  # a reset, not a clean close
+        assert done.wait(10)
+    finally:
+        srv.shutdown()
+        srv.server_close()
+    assert head.startswith(b"HTTP/1.1 200") and errors == []
+
+
 @pytest.mark.parametrize("spec", ["bytes=0-1,5-6", "items=0-3"])
 def test_multiple_ranges_or_other_units_send_the_whole_file(server, spec):
     response, body = request(server, "/scenes/scene.spc", {"Range": spec})
@@ -109,7 +234,7 @@ def test_root_redirects_to_the_viewer_with_the_scene(server):
 
 @pytest.mark.parametrize("path", ["/../outside.txt", "/viewer/../../outside.txt",
                                   "/%2e%2e/outside.txt", "/.secret", "/scenes/other.spc",
-                                  "/nothing.html", "/src/"])
+                                  "/nothing.html", "/src/", "/link-out.txt", "/%00/../outside.txt"])
 def test_nothing_outside_the_web_root_or_hidden_is_served(server, path):
     response, body = request(server, path)
     assert response.status == 404 and b"outside the web root" not in body and b"hidden" not in body
@@ -219,3 +344,41 @@ def test_serve_up_reaches_the_page_for_files_that_do_not_store_it(tmp_path):
     finally:
         srv.shutdown()
         srv.server_close()
+
+
+def wheel_web_patterns() -> list[str]:
+    """setup.py's VIEWER_FILES: the files of web/ a wheel carries (read, not imported: importing
+    setup.py would run setup())."""
+    tree = ast.parse((REPO / "setup.py").read_text())
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and getattr(node.targets[0], "id", "") == "VIEWER_FILES":
+            return ast.literal_eval(node.value)
+    raise AssertionError("setup.py has no VIEWER_FILES")
+
+
+def test_web_readme_says_where_the_example_pages_are_served(tmp_path):
+    """web/README.md said `spcodec serve` serves /examples/ pages; an installed spcodec answered
+    404. Lay out the web folder a wheel carries (setup.py's patterns, as its build copies them),
+    serve it, and hold the README's paragraph on the examples to what that server answers."""
+    web = REPO / "web"
+    for pattern in wheel_web_patterns():
+        for source in web.glob(pattern):
+            target = tmp_path / "web" / source.relative_to(web)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(source, target)
+    scene = tmp_path / "scene.spc"
+    scene.write_bytes(SCENE)
+    srv = make_server([scene], port=0, web_root=tmp_path / "web")
+    threading.Thread(target=srv.serve_forever, daemon=True).start()
+    try:
+        viewer = request(srv.server_address[:2], "/viewer/index.html")[0].status
+        example = request(srv.server_address[:2], "/examples/playcanvas.html")[0].status
+    finally:
+        srv.shutdown()
+        srv.server_close()
+    assert viewer == 200
+    shipped = any(fnmatch.fnmatch("examples/playcanvas.html", p) for p in wheel_web_patterns())
+    assert example == (200 if shipped else 404)
+    paragraph = next(p for p in (web / "README.md").read_text().split("\n\n") if "/examples/" in p)
+    says_not_in_wheel = "does not carry them" in " ".join(paragraph.split())
+    assert says_not_in_wheel == (example == 404), paragraph

@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 from typing import BinaryIO, Union
 
 from spcodec.cloud import GaussianCloud
-from spcodec.codecs import Gunzipped, gunzip, gunzip_head, is_gzip
+from spcodec.codecs import Gunzipped, crc32, gunzip, gunzip_head, is_gzip
 from spcodec.container import FIXED_HEADER_SIZE, GZIP_MAGIC, MAGIC, header_size
-from spcodec.errors import FormatError, LimitError, TruncatedError, UsageError
+from spcodec.errors import ChecksumError, FormatError, LimitError, TruncatedError, UsageError
 from spcodec.limits import DEFAULT_LIMITS, Limits
 
 from .header import Header, header_bytes_needed, read_header
@@ -132,6 +132,30 @@ def decode_layers(source: Source, max_layer: int | None = None,
         layers.append(decoder.fill(plan, k, cloud.view(start, stop)))
         start = stop
     return DecodeResult(header, layers, last == len(header.layers) - 1, cloud)
+
+
+def verify_sections(source: Source, limits: Limits | None = None) -> int:
+    """Check the CRC-32 of every section the table lists ([R-7]), decoding nothing; returns how
+    many were checked. ``inspect`` reads the header alone, so a damaged layer went unseen until a
+    full decode; here one ChecksumError names every damaged section by layer and index, and a
+    TruncatedError says which sections the data lacks (they could not be verified)."""
+    limits = limits or DEFAULT_LIMITS
+    data, _ = _unwrap(read_source(source, limits), limits)
+    header = read_header(data, limits)
+    view = memoryview(data)
+    damaged = [s for s in header.sections
+               if s.end <= len(data) and crc32(view[s.offset:s.end]) != s.crc32]
+    if damaged:
+        raise ChecksumError("CRC-32 mismatch in " + "; ".join(
+            f"layer {s.layer} section #{s.index} ({s.type_name}, bytes {s.offset}..{s.end})"
+            for s in damaged))
+    missing = [s for s in header.sections if s.end > len(data)]
+    if missing:
+        present = len(header.sections) - len(missing)
+        raise TruncatedError(f"the data ends at byte {len(data)} of {header.file_size}: "
+                             f"{len(missing)} sections, from layer {min(s.layer for s in missing)} "
+                             f"on, are missing or cut short (the {present} present verified)")
+    return len(header.sections)
 
 
 def _last_decodable_layer(header: Header, available: int, max_layer: int | None) -> int:

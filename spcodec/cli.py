@@ -99,6 +99,8 @@ runs many small tensor operations that more threads barely speed up, while two t
 project's busy 2-core machine ran retraining 4-8x slower than one (docs/RESULTS.md, section 13)."""
 MAX_TURNTABLE = 64
 """Views in a turntable contact sheet (64 views of 400 pixels make a 3,200-pixel square)."""
+UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
+"""The values of --up, and the ones an .spc's metadata may store."""
 
 
 def command(name: str, help_text: str, configure: Configure):
@@ -111,7 +113,8 @@ def command(name: str, help_text: str, configure: Configure):
 
 # --------------------------------------------------------------------------------- decode
 def _add_decode(p: argparse.ArgumentParser) -> None:
-    p.add_argument("input", help="an .spc file (gzip-wrapped or not), or a prefix of one")
+    p.add_argument("input", help="an .spc file (gzip-wrapped or not), or a prefix of one, or a "
+                   ".glb that 'spcodec embed' wrote")
     p.add_argument("-o", "--output", required=True,
                    help="the file to write: a 3DGS PLY (INRIA layout; a .ply name, a device or "
                    "- for standard output), or with a .glb name a binary glTF with "
@@ -143,16 +146,17 @@ def cmd_decode(args: argparse.Namespace) -> int:
     if args.preview and args.max_layer is not None:
         raise UsageError("--max-layer chooses layers of the scene, --preview decodes the "
                          "preview instead: give one of them")
+    source = spc_source(args.input)
     start = time.perf_counter()
     if args.preview:
-        cloud, counts = _decode_preview(args.input)
+        cloud, counts = _decode_preview(source, args.input)
     else:
-        result = decode_layers(args.input, max_layer=args.max_layer)
+        result = decode_layers(source, max_layer=args.max_layer)
         cloud = result.cloud
         counts = ", ".join(f"L{layer.index} {len(layer.cloud)}" for layer in result.layers)
     elapsed = time.perf_counter() - start
     if suffix == ".glb":  # upright in glTF's +Y, from the up axis the file stores
-        write_glb(args.output, cloud, up=(inspect(args.input).metadata or {}).get("up"))
+        write_glb(args.output, cloud, up=(inspect(source).metadata or {}).get("up"))
     else:
         write_ply(args.output, cloud)
     print(f"decoded {len(cloud)} Gaussians ({counts}) in {elapsed * 1000:.0f} ms -> "
@@ -161,12 +165,12 @@ def cmd_decode(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _decode_preview(path: str):
+def _decode_preview(source, path: str):
     """The preview's Gaussians and a note for the report line; a file without one is the
     user's mistake (a one-line error), not an empty output."""
     from .decoder import decode_preview
 
-    preview = decode_preview(path)
+    preview = decode_preview(source)
     if preview is None:
         raise UsageError(f"{path} has no preview (spec 7.4); decode it without --preview")
     return preview.cloud, f"the preview, shown until layer {preview.takeover_layer} arrives"
@@ -197,22 +201,33 @@ def cmd_embed(args: argparse.Namespace) -> int:
 
 # ----------------------------------------------------------------------------------- info
 def _add_info(p: argparse.ArgumentParser) -> None:
-    p.add_argument("input", help="an .spc file")
+    p.add_argument("input", help="an .spc file, or a .glb that 'spcodec embed' wrote")
     p.add_argument("--json", action="store_true", help="print a JSON document (default: text)")
+    p.add_argument("--verify", action="store_true",
+                   help="also check the CRC-32 of every section, reading the whole file; a "
+                   "damaged one fails the command, named by layer and section (default: off, "
+                   "only the header is read)")
 
 
 @command("info", "describe an .spc file: version, layers, sections and their byte ranges",
          _add_info)
 def cmd_info(args: argparse.Namespace) -> int:
     from .decoder import inspect
+    from .decoder.api import verify_sections
 
-    doc = inspect(args.input).to_json()
+    source = spc_source(args.input)
+    doc = inspect(source).to_json()
+    if args.verify:  # before any output: a damaged file gets the error line alone
+        doc["verified_sections"] = verify_sections(source)
+    if not isinstance(source, str):
+        doc["embedded_in"] = "glb"
     if args.json:
         print(json.dumps(doc, indent=2))
         return EXIT_OK
     print(f"{args.input}: spcodec bitstream v{doc['version']}, {doc['gaussians']} Gaussians, "
           f"SH degree {doc['sh_degree']}, {doc['stored_size']} bytes"
-          f"{' (gzip-wrapped)' if doc['gzip'] else ''}")
+          f"{' (gzip-wrapped)' if doc['gzip'] else ''}"
+          f"{' embedded in a glTF' if 'embedded_in' in doc else ''}")
     if doc["complete_layers"] < len(doc["layers"]):
         print(_partial_file_note(doc))
     print("layers:")
@@ -234,6 +249,8 @@ def cmd_info(args: argparse.Namespace) -> int:
         print(_preview_line(doc["preview"]))
     if doc["metadata"]:
         print("metadata: " + json.dumps(doc["metadata"], sort_keys=True)[:200])
+    if args.verify:
+        print(f"all {doc['verified_sections']} sections verified (CRC-32)")
     return EXIT_OK
 
 
@@ -264,6 +281,85 @@ def _partial_file_note(doc: dict) -> str:
         return f"PREFIX: the data ends at a layer boundary, {where}; {whole} and decode"
     hint = f" (decode them with --max-layer {k - 1})" if k else ""
     return f"TRUNCATED: the data ends inside layer {k}, {where}; {whole}{hint}"
+
+
+def spc_source(path: str) -> str | bytes:
+    """What to decode for ``path``: the path itself, or for a binary glTF the .spc that
+    ``spcodec embed`` put inside it (a glTF without one is named as such, not "bad magic")."""
+    from .gltf import GLB_MAGIC
+
+    if not os.path.isfile(path):  # a pipe or device is read once, by the decoder alone
+        return path
+    with open(path, "rb") as fh:
+        if fh.read(len(GLB_MAGIC)) != GLB_MAGIC:
+            return path
+    DEFAULT_LIMITS.check("input file size", os.path.getsize(path), DEFAULT_LIMITS.max_file_bytes)
+    return embedded_spc(Path(path).read_bytes(), path)
+
+
+def embedded_spc(glb: bytes, name: str) -> bytes:
+    """The bytes of the buffer view that a primitive's ``KHR_gaussian_splatting`` names through
+    ``SPCODEC_gaussian_splatting_compression_spc`` (gltf.compressed_glb_bytes writes it)."""
+    import struct
+
+    from .gltf import COMPRESSION, EXTENSION
+
+    try:
+        document, binary = _glb_chunks(glb)
+        view = _spc_view(document)
+        spc = None if view is None else _view_bytes(view, binary)
+    except (struct.error, ValueError, KeyError, IndexError, TypeError, AttributeError,
+            RecursionError) as exc:
+        raise FormatError(f"{name}: a glTF file whose embedded .spc cannot be found (malformed "
+                          f"glTF: {exc.__class__.__name__})", "bad-magic") from None
+    if spc is None:
+        raise UsageError(f"{name} is a glTF file whose splats are glTF accessors, not an embedded "
+                         f".spc ({COMPRESSION}, as 'spcodec embed' writes): view it with 'spcodec "
+                         f"serve {name}' or any viewer with {EXTENSION}, or use the .spc it came "
+                         "from")
+    return spc
+
+
+def _glb_chunks(glb: bytes) -> tuple[dict, bytes]:
+    """The JSON document and the binary chunk (empty when absent) of a binary glTF."""
+    import struct
+
+    from .gltf import _CHUNK_JSON
+
+    json_length, json_type = struct.unpack_from("<II", glb, 12)
+    document = json.loads(glb[20:20 + json_length])
+    if json_type != _CHUNK_JSON or not isinstance(document, dict):
+        raise ValueError("the first chunk is no JSON object")
+    rest = 20 + json_length
+    if len(glb) < rest + 8:
+        return document, b""
+    bin_length, _ = struct.unpack_from("<II", glb, rest)
+    return document, glb[rest + 8:rest + 8 + bin_length]
+
+
+def _view_bytes(view: dict, binary: bytes) -> bytes:
+    """A buffer view's bytes in the GLB's binary chunk (buffer 0), checked against its end."""
+    start, length = view.get("byteOffset", 0), view["byteLength"]
+    valid = view.get("buffer", 0) == 0 and all(type(v) is int and v >= 0 for v in (start, length))
+    if not valid or start + length > len(binary):
+        raise ValueError("the .spc buffer view lies outside the binary chunk")
+    return binary[start:start + length]
+
+
+def _spc_view(document: dict) -> dict | None:
+    """The buffer view holding the .spc; None when no primitive names one."""
+    from .gltf import COMPRESSION, EXTENSION
+
+    for mesh in document.get("meshes", []):
+        for primitive in mesh.get("primitives", []):
+            splat = primitive.get("extensions", {}).get(EXTENSION, {})
+            link = splat.get("extensions", {}).get(COMPRESSION)
+            if link is not None:
+                index = link["bufferView"]
+                if type(index) is not int or index < 0:
+                    raise ValueError(f"bufferView {index!r}")
+                return document["bufferViews"][index]
+    return None
 
 
 # ------------------------------------------------------------------------- attach-preview
@@ -528,7 +624,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
     from .encoder.progress import StageReporter, print_summary
     from .encoder.ratecontrol import parse_size
     from .fileio import atomic_write, check_writable, refuse_same_file
-    from .ply import read_ply
+    from .ply import check_finite, read_ply
 
     refuse_same_file(args.output, args.input)
     check_writable(args.output)
@@ -539,6 +635,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
     preview_size = parse_size(args.preview_size) if args.preview_size is not None else None
     control = run_control(args, config.retrain is not None)
     cloud = read_ply(args.input)
+    check_finite(cloud)  # the pipeline checks too, but names only the first bad array
     reporter = StageReporter(enabled=not args.quiet)
     with _stop_on_ctrl_c(control):
         try:
@@ -624,14 +721,10 @@ def run_control(args: argparse.Namespace, retraining: bool):
     import torch
 
     from .encoder.retrain import RunControl
-    from .imaging.render import resolve_device
     from .imaging.training.checkpoint import checkpoint_path
 
     torch.set_num_threads(args.threads or DEFAULT_THREADS)
-    try:
-        resolve_device(args.device)  # before any work: a missing GPU is the user's to fix
-    except RuntimeError as exc:
-        raise UsageError(f"--device {args.device}: {exc}; use --device cpu or auto") from None
+    check_device(args.device)
     if not retraining:
         return RunControl(device=args.device)
     argv = [a for a in sys.argv[1:] if a != "--resume"] + ["--resume"]
@@ -639,6 +732,17 @@ def run_control(args: argparse.Namespace, retraining: bool):
     return RunControl(device=args.device, checkpoint=checkpoint_path(args.output),
                       checkpoint_every=every, resume=args.resume,
                       resume_hint="spcodec " + shlex.join(argv))
+
+
+def check_device(device: str) -> None:
+    """Refuse a --device this machine lacks (``cuda`` without a GPU) with a one-line usage
+    error, before any work: encode, eval and render share this check."""
+    from .imaging.render import resolve_device
+
+    try:
+        resolve_device(device)  # before any work: a missing GPU is the user's to fix
+    except RuntimeError as exc:
+        raise UsageError(f"--device {device}: {exc}; use --device cpu or auto") from None
 
 
 @contextlib.contextmanager
@@ -667,22 +771,44 @@ def _stop_on_ctrl_c(control):
 # ---------------------------------------------------------------------------- eval, render
 def load_model(path: str, max_layer: int | None = None):
     """A scene from an .spc (by its magic, gzip-wrapped or not) or from any 3DGS PLY."""
-    from .container import GZIP_MAGIC, MAGIC
     from .decoder import decode
-    from .ply import read_ply
+    from .ply import check_finite, read_ply
 
-    with open(path, "rb") as fh:
-        head = fh.read(len(MAGIC))
-    if head == MAGIC or head[:2] == GZIP_MAGIC:
+    if _is_spc(path):
         return decode(path, max_layer=max_layer)
     if max_layer is not None:
         raise UsageError(f"--max-layer needs an .spc input; {path} is not one")
     cloud = read_ply(path)
     try:
-        cloud.check_finite()  # what encode refuses, render and eval refuse too
+        check_finite(cloud)  # what encode refuses, render and eval refuse too
     except FormatError as exc:
         raise FormatError(f"{path}: {exc.args[0]}", exc.code) from None
     return cloud
+
+
+def _is_spc(path: str) -> bool:
+    """An .spc by its magic, gzip-wrapped or not (whatever its name)."""
+    from .container import GZIP_MAGIC, MAGIC
+
+    with open(path, "rb") as fh:
+        head = fh.read(len(MAGIC))
+    return head == MAGIC or head[:2] == GZIP_MAGIC
+
+
+def view_up(given: str | None, *paths: str | None) -> str:
+    """The up axis of sampled views: ``--up`` when given, else the one the first .spc among
+    ``paths`` stores (encode --up records it, as viewers and .glb use it), else -y. Without
+    this a z-up scene tumbled sideways unless --up was repeated."""
+    from .decoder import inspect
+
+    if given is not None:
+        return given
+    for path in paths:
+        if path is not None and _is_spc(path):
+            stored = (inspect(path).metadata or {}).get("up")
+            if stored in UP_AXES:  # metadata is untrusted: anything else is ignored
+                return stored
+    return "-y"
 
 
 def _add_view_options(p: argparse.ArgumentParser) -> None:
@@ -692,10 +818,10 @@ def _add_view_options(p: argparse.ArgumentParser) -> None:
                    help="use layers 0..K of an .spc: %(type)s (default: every layer)")
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
                    help=DEVICE_HELP)
-    p.add_argument("--up", default="-y", choices=["+x", "-x", "+y", "-y", "+z", "-z"],
+    p.add_argument("--up", default=None, choices=UP_AXES,
                    metavar="AXIS", help="the scene's up axis for sampled views, one of "
                    "+x -x +y -y +z -z; -y suits COLMAP-derived scenes, +z z-up ones; write "
-                   "a negative axis as --up=-y (default: %(default)s)")
+                   "a negative axis as --up=-y (default: the one an .spc stores, else -y)")
     p.add_argument("--antialiased", action="store_true",
                    help="render with Mip-Splatting's antialiased opacity (default: off)")
 
@@ -740,16 +866,18 @@ def cmd_eval(args: argparse.Namespace) -> int:
     )
 
     save = check_writable_folder(args.save_renders) if args.save_renders else None
+    check_device(args.device)
+    model = load_model(args.input, args.max_layer)
+    reference = load_model(args.reference) if args.reference else None
     config = EvalConfig(views=args.views, resolution=args.resolution, downscale=args.downscale,
-                        device=args.device, up=args.up, antialiased=args.antialiased,
-                        save_renders=save, closeups=args.closeups,
+                        device=args.device, up=view_up(args.up, args.input, args.reference),
+                        antialiased=args.antialiased, save_renders=save, closeups=args.closeups,
                         closeup_resolution=args.closeup_resolution,
                         blur_variance=args.blur_variance)
-    model = load_model(args.input, args.max_layer)
     if args.dataset:
         report = evaluate_against_dataset(model, Path(args.dataset), config)
     else:
-        report = evaluate_against_reference(model, load_model(args.reference), config)
+        report = evaluate_against_reference(model, reference, config)
     if args.json:
         print(json.dumps(report.to_json(), indent=2, allow_nan=False))
     else:
@@ -787,12 +915,13 @@ def cmd_render(args: argparse.Namespace) -> int:
                          f"sampled views), got {args.view}")
     check_writable(args.output)
     background = _parse_colour(args.background)
+    check_device(args.device)
     cloud = load_model(args.input, args.max_layer)
     if len(cloud) == 0:
         raise UsageError(f"{args.input} holds no Gaussians to render")
     count = args.turntable if args.turntable else args.views
     cameras = sample_views(cloud, count, resolution=(args.resolution, args.resolution),
-                           split="eval", up=args.up)
+                           split="eval", up=view_up(args.up, args.input))
     settings = RenderSettings(background=background, antialiased=args.antialiased)
     params = GaussianParams.from_cloud(cloud, resolve_device(args.device))
     if args.turntable:

@@ -94,8 +94,13 @@ def atomic_write(path: str | os.PathLike, data: bytes | Callable[[BinaryIO], Non
         return Path(STDOUT)
     target = _check_target(path)
     if _written_through(target):
-        with open(target, "wb") as out:
-            _write_stream(out, data)
+        try:
+            with open(target, "wb") as out:
+                _write_stream(out, data)
+        except OSError as exc:  # /dev/full: ENOSPC with no file name; name the user's path
+            if exc.filename is None:
+                raise OSError(exc.errno, exc.strerror or str(exc), str(target)) from exc
+            raise
         return target
     asked, target = target, _resolved(target)
     fd, tmp = _temporary(target.parent, target.name, asked)
@@ -147,10 +152,22 @@ def _check_target(path: str | os.PathLike) -> Path:
     if target.is_dir():
         raise UsageError(f"cannot write {target}: it is a directory")
     if not folder.is_dir():
+        blocker = _nearest_existing(folder)
+        if blocker is not None and not blocker.is_dir():
+            raise UsageError(f"cannot write {target}: {blocker} is a file, not a folder")
         raise UsageError(f"cannot write {target}: folder {folder} does not exist")
     if target.exists() and not os.access(target, os.W_OK):
         raise UsageError(f"cannot write {target}: the file is not writable")
     return target
+
+
+def _nearest_existing(folder: Path) -> Path | None:
+    """The deepest existing ancestor of ``folder`` (itself included): a file there is why the
+    folder cannot exist, which "does not exist" would hide."""
+    for candidate in (folder, *folder.parents):
+        if candidate.exists():
+            return candidate
+    return None
 
 
 def _temporary(folder: Path, name: str, what: Path) -> tuple[int, str]:

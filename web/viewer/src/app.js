@@ -6,8 +6,9 @@
 //   src=URL            the scene (.spc streams; .ply and .glb load whole)
 //   maxLayer=K         fetch and show layers 0..K only (.spc)
 //   width=W&height=H   fixed canvas resolution (default: fill the window)
-//   cam=x,y,z&target=x,y,z&fov=DEG   camera, in the upright world (+Y up; default: framed on the
-//                      first layer)
+//   cam=x,y,z&target=x,y,z&fov=DEG   camera, in the upright world (+Y up; default: framed on
+//                      the scene, and framed again as layers reach out of the view, until the user
+//                      moves the camera: the file stores no box of the whole scene)
 //   up=AXIS            the scene's up axis where the file does not store one (a PLY, an older
 //                      .spc): -y (default, COLMAP-derived scenes), +z, or a vector such as 0,0,1.
 //                      Every scene is stood upright in a +Y-up world: an .spc by the axis its
@@ -30,7 +31,7 @@ import * as pc from 'playcanvas';
 import { browserDraco } from '../../src/draco-browser.js';
 import { createApp, frameWatcher } from './engine.js';
 import { rotatePositions, upRotation } from '../../src/orientation.js';
-import { frameBounds, robustBounds } from './splats.js';
+import { SceneFraming, frameBounds } from './splats.js';
 
 const params = new URLSearchParams(location.search);
 const src = params.get('src');
@@ -59,6 +60,7 @@ const state = {
   bytesWhenFirstPictureShown: null,
   renderer: null,
   camera: null,  // {position, target, fov} once placed: pass it back in the URL to reproduce a view
+  cameraFramings: 0,  // how many times the default framing placed the camera (it follows the layers)
   sceneUp: null,  // the scene's up axis as used (stored in the file, from the URL, or the default)
   prefixPsnr: null,  // what the encoder measured per layer prefix (metadata stats.prefix_psnr)
   prefixLine: null,  // the on-screen line made from it for the prefix shown, or null
@@ -165,43 +167,72 @@ function createCamera(app) {
   return camera;
 }
 
-/** Point `camera` as the URL says, or frame `positions` (in the upright world) when the URL gives
- * no camera. The world is +Y up: scenes are stood upright before they are shown. */
-function placeCamera(camera, positions) {
-  const position = numbers('cam', 3);
-  const target = numbers('target', 3);
-  const up = [0, 1, 0];
-  const fov = Number(params.get('fov')) || 50;
-  let view;
-  if (position && target) {
-    view = { position, target, up, fov };
-  } else {
-    const bounds = robustBounds(positions);
-    if (!bounds) return false;
-    view = frameBounds(bounds, up, fov);
+const UP = [0, 1, 0];
+
+/**
+ * Where the camera looks: as the URL says (`cam`, `target`, `fov`), or framed on the scene seen so
+ * far, again each time a part of it (the preview, a layer) reaches out of the view, until the
+ * user turns or zooms. The world is +Y up: scenes are stood upright before they are shown.
+ */
+class CameraRig {
+  constructor(camera) {
+    this.camera = camera;
+    this.fov = Number(params.get('fov')) || 50;
+    this.framing = new SceneFraming();
+    /** the orbit's centre, moved with each framing */
+    this.target = new pc.Vec3();
+    /** the user has moved the camera: framing stops */
+    this.moved = false;
+    const position = numbers('cam', 3);
+    const target = numbers('target', 3);
+    this.fixed = Boolean(position && target);
+    if (this.fixed) this.aim({ position, target, up: UP, fov: this.fov });
+    orbit(this);
   }
-  state.camera = { position: view.position, target: view.target, fov: view.fov };
-  const distance = Math.hypot(...view.position.map((p, i) => p - view.target[i]));
-  camera.camera.fov = view.fov;
-  camera.camera.nearClip = Math.max(distance * 1e-3, 1e-4);
-  camera.camera.farClip = distance * 1e3;
-  camera.setPosition(...view.position);
-  camera.lookAt(new pc.Vec3(...view.target), new pc.Vec3(...view.up));
-  orbit(camera, view);
-  return true;
+
+  /**
+   * A part of the scene is in: frame the scene again if it reaches out of the view.
+   * @param {Float32Array} positions  xyz, as the file stores them
+   * @param {number[]} [rotation]  the quaternion that stands them upright (default: none)
+   */
+  see(positions, rotation = null) {
+    if (this.fixed || this.moved || positions.length < 3) return;
+    const toWorld = rotation ? (sampled) => rotatePositions(sampled, rotation) : undefined;
+    const bounds = this.framing.add(positions, toWorld);
+    if (!bounds) return;
+    this.aim(frameBounds(bounds, UP, this.fov));
+    state.cameraFramings++;
+  }
+
+  /** @param {{position: number[], target: number[], up: number[], fov: number}} view */
+  aim(view) {
+    const camera = this.camera;
+    state.camera = { position: view.position, target: view.target, fov: view.fov };
+    const distance = Math.hypot(...view.position.map((p, i) => p - view.target[i]));
+    camera.camera.fov = view.fov;
+    camera.camera.nearClip = Math.max(distance * 1e-3, 1e-4);
+    camera.camera.farClip = distance * 1e3;
+    camera.setPosition(...view.position);
+    this.target.set(...view.target);
+    camera.lookAt(this.target, new pc.Vec3(...view.up));
+  }
 }
 
-/** Drag to turn around the target, wheel to come closer: about the scene's own up axis. */
-function orbit(camera, view) {
-  const target = new pc.Vec3(...view.target);
-  const up = new pc.Vec3(...view.up).normalize();
+/** Drag to turn around the rig's target, wheel to come closer: about the world's up axis. Either
+ * marks the rig moved, so the framing leaves the camera to the user. */
+function orbit(rig) {
+  const camera = rig.camera;
+  const target = rig.target;  // the rig moves it in place when it frames the scene again
+  const up = new pc.Vec3(...UP);
   let dragging = null;
   canvas.addEventListener('pointerdown', (e) => { dragging = { x: e.clientX, y: e.clientY }; });
   window.addEventListener('pointerup', () => { dragging = null; });
   window.addEventListener('pointermove', (e) => {
     if (!dragging) return;
     const dx = e.clientX - dragging.x, dy = e.clientY - dragging.y;
+    if (!dx && !dy) return;
     dragging = { x: e.clientX, y: e.clientY };
+    rig.moved = true;
     const offset = camera.getPosition().clone().sub(target);
     const yaw = new pc.Quat().setFromAxisAngle(up, -dx * 0.3);
     const side = new pc.Vec3().cross(up, offset).normalize();
@@ -212,13 +243,14 @@ function orbit(camera, view) {
   });
   canvas.addEventListener('wheel', (e) => {
     e.preventDefault();
+    rig.moved = true;
     const offset = camera.getPosition().clone().sub(target).mulScalar(Math.exp(e.deltaY * 0.001));
     camera.setPosition(target.clone().add(offset));
   }, { passive: false });
 }
 
 // ------------------------------------------------------------------------------- the scenes
-async function showSpc(app, camera, whenShown) {
+async function showSpc(app, rig, whenShown) {
   const spc = await import('../../src/index.js');
   const { loadSpc } = await import('../../loaders/playcanvas.js');
   spc.configureDraco(browserDraco());
@@ -226,16 +258,11 @@ async function showSpc(app, camera, whenShown) {
   if (!(Number.isInteger(maxLayer) && maxLayer >= 0) && maxLayer !== Infinity) {
     throw new Error(`URL parameter maxLayer must be a layer number (0, 1, ...), got "${params.get('maxLayer')}"`);
   }
-  let placed = false;
   const shown = [];
   /** @type {object[]} events of the layers held back behind the preview, until it is dropped */
   let held = [];
   /** @type {object[] | null} set when the preview was just dropped: the layers it held back */
   let released = null;
-
-  const place = (cloud, rotation) => {
-    if (cloud.count > 0 && !placed) placed = placeCamera(camera, rotatePositions(cloud.positions, rotation));
-  };
 
   const addPreview = (p) => {  // its entity is in the scene already (the loader added it)
     const preview = { bytes: p.bytes, gaussians: p.cloud.count, takeoverLayer: p.takeoverLayer,
@@ -244,7 +271,7 @@ async function showSpc(app, camera, whenShown) {
     state.preview = preview;
     state.showing = 'preview';
     state.layerCount ??= p.layerCount;  // a file read as one stream gives no info document
-    place(p.cloud, p.rotation);
+    rig.see(p.cloud.positions, p.rotation);  // a small copy of the whole scene
     if (p.cloud.count > 0) {
       shown.push(whenShown().then(() => {
         if (preview.tDropped != null) return;  // replaced before any frame showed it
@@ -273,7 +300,7 @@ async function showSpc(app, camera, whenShown) {
     state.layersDecoded = layer.index + 1;
     state.gaussians += cloud.count;
     if (state.showing == null) state.showing = 'scene';
-    place(cloud, layer.rotation);
+    rig.see(cloud.positions, layer.rotation);  // held back or not: it is part of the scene
     if (!layer.shown) {  // held back behind the preview
       held.push(event);
       showProgress();
@@ -356,7 +383,7 @@ async function streamLayersInto(loadSpc, app, maxLayer, { addLayer, addPreview, 
   });
 }
 
-async function showAsset(app, camera, whenShown) {
+async function showAsset(app, rig, whenShown) {
   const type = state.kind === 'ply' ? 'gsplat' : 'container';
   const asset = new pc.Asset('scene', type, { url: src });
   asset.on('progress', (received, total) => {
@@ -387,7 +414,7 @@ async function showAsset(app, camera, whenShown) {
   state.gaussians = resources.reduce((sum, r) => sum + r.gsplatData.numSplats, 0);
   app.root.addChild(entity);
   const centres = resources[0].centers ?? resources[0].gsplatData.getCenters();
-  placeCamera(camera, worldPositions(centres, upright ?? nodeRotation(entity)));
+  rig.see(worldPositions(centres, upright ?? nodeRotation(entity)));
   await whenShown();
   state.tFirstPicture = now();
   state.bytesAtFirstPicture = state.bytesLoaded;
@@ -427,13 +454,13 @@ async function main() {
   const app = await createApp(canvas, Number(params.get('width')) || 0, Number(params.get('height')) || 0);
   const gl = app.graphicsDevice.gl;
   state.renderer = gl ? gl.getParameter(gl.RENDERER) : app.graphicsDevice.deviceType;
-  const camera = createCamera(app);
+  const rig = new CameraRig(createCamera(app));
   const whenShown = frameWatcher(app);
   state.status = 'loading';
   state.tStart = performance.now();
   if (state.kind === 'glb' && await embedsSpc(src)) state.kind = 'spc';  // `spcodec embed`
-  if (state.kind === 'spc') await showSpc(app, camera, whenShown);
-  else await showAsset(app, camera, whenShown);
+  if (state.kind === 'spc') await showSpc(app, rig, whenShown);
+  else await showAsset(app, rig, whenShown);
   state.tComplete = now();
   state.status = 'complete';
   showProgress();

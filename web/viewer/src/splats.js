@@ -28,6 +28,75 @@ export function robustBounds(positions) {
   return { centre, radius };
 }
 
+/** Most sampled centres a framing keeps (robustBounds reads 20,000 of them). */
+const MAX_SAMPLES = 40000;
+
+/** How far, as a share of the framed radius, the scene may reach out of the framed sphere before
+ * the camera moves: small shifts of the percentile box as layers arrive leave it where it is. */
+const REFIT_SLACK = 0.1;
+
+/**
+ * The default framing of a scene that arrives in parts (the preview, then layer by layer): the
+ * format stores no box of the whole scene (the header has counts and offsets; the sketch clusters'
+ * frames cover layer 0 only), and layer 0 may hold one corner of it, so each part's centres join an
+ * evenly spaced sample of all of them, and the framing follows that sample's robust bounds when
+ * they reach out of the sphere framed so far.
+ */
+export class SceneFraming {
+  constructor() {
+    /** @type {number[]} sampled centres, xyz */
+    this.samples = [];
+    /** keep every `stride`-th centre (a power of two, doubled as the sample fills) */
+    this.stride = 1;
+    /** centres seen so far, all parts together */
+    this.seen = 0;
+    /** @type {{centre: number[], radius: number}|null} the bounds framed last */
+    this.framed = null;
+  }
+
+  /**
+   * Add one part's centres.
+   * @param {Float32Array} positions xyz
+   * @param {(sampled: Float32Array) => Float32Array} [toWorld]  into the world the camera sees
+   *   (applied to the sampled centres only: a layer may hold millions)
+   * @returns {{centre: number[], radius: number}|null} the bounds to frame now, or null when
+   *   those framed already hold the scene seen so far
+   */
+  add(positions, toWorld = (sampled) => sampled) {
+    this.makeRoom(Math.floor(positions.length / 3));
+    for (const v of toWorld(this.sample(positions))) this.samples.push(v);
+    const bounds = robustBounds(Float32Array.from(this.samples));
+    if (!bounds || (this.framed && holds(this.framed, bounds, REFIT_SLACK))) return null;
+    this.framed = bounds;
+    return bounds;
+  }
+
+  /** The centres of a part whose index among all seen is a multiple of the stride. */
+  sample(positions) {
+    const n = Math.floor(positions.length / 3);
+    const first = (this.stride - this.seen % this.stride) % this.stride;
+    this.seen += n;
+    const kept = new Float32Array(3 * Math.max(0, Math.ceil((n - first) / this.stride)));
+    for (let i = first, k = 0; i < n; i += this.stride, k += 3) kept.set(positions.subarray(i * 3, i * 3 + 3), k);
+    return kept;
+  }
+
+  /** Double the stride, and drop every other centre kept (those left are at multiples of the new
+   * stride), until `count` more centres fit in the sample. */
+  makeRoom(count) {
+    while (this.samples.length / 3 + count / this.stride > MAX_SAMPLES) {
+      this.samples = this.samples.filter((_, j) => Math.floor(j / 3) % 2 === 0);
+      this.stride *= 2;
+    }
+  }
+}
+
+/** Whether sphere `outer`, grown by `slack` of its radius, holds sphere `inner`. */
+function holds(outer, inner, slack = 0) {
+  const apart = Math.hypot(...inner.centre.map((c, i) => c - outer.centre[i]));
+  return apart + inner.radius <= outer.radius * (1 + slack);
+}
+
 /**
  * A camera that looks at the bounds from outside, 20 degrees above the horizon of `up`, far
  * enough for a sphere of the bounds' radius to fill the vertical field of view.

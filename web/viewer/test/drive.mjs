@@ -10,7 +10,9 @@
 //    "evaluate": "optional JS expression whose value is reported once the last capture is taken"}
 // Each capture waits until the page's `window.spcViewer` reaches the condition, saves the canvas
 // as a PNG and keeps a copy of the page state at that moment. The report, one JSON object on
-// stdout, has per visit: {captures: [{when, path, state}], state, value, console, error}.
+// stdout, has per visit: {captures: [{when, path, state}], state, value, console, error,
+// failedRequests: [{url, status, error}]} (responses of status 400 or more, and requests that got
+// no response: status null, and Chromium's reason, e.g. net::ERR_ABORTED for a cancelled body).
 // The Python browser tests and bench/bench_viewer.py call this script; assertions live there.
 
 import fs from 'node:fs';
@@ -34,7 +36,13 @@ async function visit(browser, spec) {
   const consoleLines = [];
   page.on('console', (m) => consoleLines.push(`${m.type()}: ${m.text()}`));
   page.on('pageerror', (e) => consoleLines.push(`pageerror: ${e.message}`));
-  const report = { url: spec.url, captures: [], console: consoleLines, error: null };
+  const failedRequests = [];
+  page.on('response', (r) => {
+    if (r.status() >= 400) failedRequests.push({ url: r.url(), status: r.status() });
+  });
+  page.on('requestfailed', (r) => failedRequests.push({ url: r.url(), status: null,
+    error: r.failure()?.errorText ?? null }));
+  const report = { url: spec.url, captures: [], console: consoleLines, error: null, failedRequests };
   const deadline = Date.now() + (spec.timeoutMs ?? 120000);
   try {
     await page.goto(spec.url);

@@ -3,7 +3,7 @@
 import assert from 'node:assert/strict';
 import test from 'node:test';
 import { plyProperties } from '../../loaders/playcanvas.js';
-import { frameBounds, robustBounds } from '../src/splats.js';
+import { SceneFraming, frameBounds, robustBounds } from '../src/splats.js';
 
 test('plyProperties splits interleaved arrays and writes f_rest channel-major', () => {
   const n = 2, shDegree = 1, k = 3;
@@ -42,4 +42,60 @@ test('robustBounds ignores a far floater and frameBounds looks at the centre fro
   assert.ok(distance > bounds.radius);
   assert.ok(view.position[1] < view.target[1], 'above the centre means smaller y when -y is up');
   assert.equal(robustBounds(new Float32Array(0)), null);
+});
+
+/** `n` centres spread evenly through the box [lo, hi] (a seeded LCG, so runs agree). */
+function boxOf(n, lo, hi, seed = 1) {
+  let x = seed;
+  const next = () => ((x = (x * 1664525 + 1013904223) >>> 0) / 2 ** 32);
+  const out = new Float32Array(3 * n);
+  for (let i = 0; i < 3 * n; i++) out[i] = lo[i % 3] + next() * (hi[i % 3] - lo[i % 3]);
+  return out;
+}
+
+/** The share of `positions` in front of the camera and inside its field of view (a square image:
+ * the vertical field of view both ways). */
+function framedShare(view, positions) {
+  const sub = (a, b) => a.map((v, i) => v - b[i]);
+  const unit = (v) => v.map((x) => x / Math.hypot(...v));
+  const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+  const dot = (a, b) => a.reduce((s, v, i) => s + v * b[i], 0);
+  const forward = unit(sub(view.target, view.position));
+  const right = unit(cross(forward, view.up));
+  const up = cross(right, forward);
+  const half = Math.tan((view.fov * Math.PI / 180) / 2);
+  let inside = 0;
+  const n = positions.length / 3;
+  for (let i = 0; i < n; i++) {
+    const d = sub([...positions.subarray(3 * i, 3 * i + 3)], view.position);
+    const z = dot(d, forward);
+    if (z > 0 && Math.abs(dot(d, right)) <= half * z && Math.abs(dot(d, up)) <= half * z) inside++;
+  }
+  return inside / n;
+}
+
+test('SceneFraming frames the whole scene when layer 0 holds one corner of it', () => {
+  const corner = boxOf(1025, [0, 0, 0], [1, 1, 1]);  // layer 0: a corner of the 10 m box
+  const rest = [boxOf(30000, [0, 0, 0], [10, 10, 10], 2), boxOf(60000, [0, 0, 0], [10, 10, 10], 3)];
+  const whole = new Float32Array([...corner, ...rest[0], ...rest[1]]);
+  const framing = new SceneFraming();
+  const first = framing.add(corner);
+  assert.ok(first && first.radius < 1, 'layer 0 is framed first');
+  assert.ok(framedShare(frameBounds(first), whole) < 0.1, 'layer 0 alone frames a sliver of it');
+  const next = framing.add(rest[0]);
+  assert.ok(next, 'a layer reaching out of the view frames the scene again');
+  assert.ok(framedShare(frameBounds(next), whole) > 0.95);
+  assert.equal(framing.add(rest[1]), null, 'more of the same scene leaves the camera where it is');
+  assert.ok(framing.samples.length <= 3 * 40000 && framing.stride > 1, 'the sample stays small');
+});
+
+test('SceneFraming keeps the framing of a preview of the whole scene, and samples in world space', () => {
+  const framing = new SceneFraming();
+  const preview = boxOf(500, [-5, -5, -5], [5, 5, 5]);
+  assert.ok(framing.add(preview));
+  assert.equal(framing.add(boxOf(2000, [-1, -1, -1], [1, 1, 1])), null, 'inside the view');
+  assert.equal(framing.add(boxOf(2000, [-5, -5, -5], [5.3, 5, 5])), null, 'within the slack');
+  const moved = new SceneFraming().add(preview, (p) => p.map((v, i) => (i % 3 === 1 ? v + 100 : v)));
+  assert.ok(Math.abs(moved.centre[1] - 100) < 1, 'toWorld turns the sampled centres');
+  assert.equal(new SceneFraming().add(new Float32Array(0)), null);
 });

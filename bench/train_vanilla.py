@@ -50,7 +50,8 @@ from spcodec.encoder.progress import StageReporter
 from spcodec.fileio import atomic_write
 from spcodec.imaging.datasets import load_dataset
 from spcodec.imaging.evaluate import EvalConfig, evaluate_against_dataset
-from spcodec.imaging.render import GaussianParams, RenderSettings, resolve_device
+from spcodec.imaging.render import (GaussianParams, RenderSettings, resolve_backend,
+                                   resolve_device)
 from spcodec.imaging.render.sh import SH_C0
 from spcodec.imaging.training.densify import REFERENCE_ITERATIONS, Densifier, DensifyConfig
 from spcodec.imaging.training.loop import FitLoop, StepReport
@@ -171,6 +172,13 @@ def train(targets: Targets, config: VanillaConfig, device: torch.device | str = 
                    psnr_end, load)
 
 
+def peak_gpu_mib() -> float | None:
+    """The most GPU memory torch held at once in this process (None without CUDA)."""
+    if not torch.cuda.is_available() or not torch.cuda.is_initialized():
+        return None
+    return round(torch.cuda.max_memory_allocated() / 2**20, 1)
+
+
 def git_commit() -> str | None:
     try:
         return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
@@ -195,6 +203,7 @@ def record(args: argparse.Namespace, config: VanillaConfig, targets: Targets, ru
         "final_train_psnr": round(run.final_psnr, 3),
         "train_psnr_8_views": {"start": round(run.psnr_start, 3), "end": round(run.psnr_end, 3)},
         "peak_rss_mib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+        "peak_gpu_mib": peak_gpu_mib(),
         "load_average": {"start": args.load_start, "during_mean":
                          round(float(np.mean(run.load)), 2) if run.load else None,
                          "end": round(os.getloadavg()[0], 2)},
@@ -203,6 +212,7 @@ def record(args: argparse.Namespace, config: VanillaConfig, targets: Targets, ru
         "test": test,
         "machine": {"cpus": os.cpu_count(), "torch_threads": torch.get_num_threads(),
                     "device": torch.cuda.get_device_name() if args.device == "cuda" else "cpu",
+                    "renderer": resolve_backend("auto", torch.device(args.device)),
                     "nice": os.nice(0), "platform": platform.platform(),
                     "torch": torch.__version__, "python": platform.python_version()},
         "git_commit": git_commit(),
@@ -227,8 +237,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     p.add_argument("--device", default="cpu", choices=["cpu", "cuda"],
-                   help="where the Gaussians train (torch renderer); evaluation renders on the CPU "
-                        "(default: cpu)")
+                   help="where the Gaussians train (gsplat on CUDA where it imports, else the "
+                        "torch renderer) (default: cpu)")
+    p.add_argument("--eval-device", default=None, choices=["cpu", "cuda"],
+                   help="where the test split renders (default: --device)")
     p.add_argument("--max-views", type=int, default=None,
                    help="use at most this many training views (default: all)")
     p.add_argument("--no-eval", action="store_true", help="skip the test-split evaluation")
@@ -261,8 +273,8 @@ def main(argv: list[str] | None = None) -> dict:
     write_ply(args.output, run.cloud)
     test = {}
     if not args.no_eval and dataset.test:
-        report = evaluate_against_dataset(run.cloud, Path(args.dataset),
-                                          EvalConfig(downscale=args.downscale, device="cpu"))
+        report = evaluate_against_dataset(run.cloud, Path(args.dataset), EvalConfig(
+            downscale=args.downscale, device=args.eval_device or args.device))
         test = {"psnr": round(report.psnr, 3), "ssim": round(report.ssim, 4),
                 "views": len(report.views)}
     doc = record(args, config, targets, run, test)

@@ -19,10 +19,10 @@ import numpy as np
 from spcodec.attributes import decode_rotation
 from spcodec.cloud import GaussianCloud
 from spcodec.container import Codec
-from spcodec.decoder import decode_layers, inspect
+from spcodec.decoder import decode_layers
 from spcodec.errors import FormatError, UsageError
 from spcodec.imaging.evaluate import EvalConfig, evaluate_against_dataset, evaluate_against_reference
-from spcodec.writer import EncodedScene, WriteOptions
+from spcodec.writer import EncodedScene, WriteOptions, WrittenFile
 
 from .categorize import categorize
 from .config import DEFAULT_POSITION_BITS, EncoderConfig, PatchConfig
@@ -115,17 +115,17 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
     if not pruned:
         last: dict = {}
 
-        def encoded(part: SketchOutcome, part_writer: SceneWriter) -> bytes:
-            last["patch"], last["data"] = _encode_patch(cloud, part, part_writer, importance,
+        def encoded(part: SketchOutcome, part_writer: SceneWriter) -> WrittenFile:
+            last["patch"], last["file"] = _encode_patch(cloud, part, part_writer, importance,
                                                         patch_encoder, progress, times)
             last["sketch"] = part
-            return last["data"]
+            return last["file"]
 
         sketch, writer = _cap_sketch(cloud, refined, found, sketch, writer, config, importance,
                                      encoded, progress, times)
         if last.get("sketch") is not sketch:
             encoded(sketch, writer)
-        patch, data = last["patch"], last["data"]
+        patch, written = last["patch"], last["file"]
         rows = np.arange(len(sketch.patch_idx))
     else:
         weights = importance if prepared is None else scene_weights(cloud, config, prepared)
@@ -141,7 +141,8 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
                                      times)
         patch, rows, extra = choice.encoding, choice.rows, choice.stats
         writer = writer.with_prefix_psnr(extra.get("retrain", {}).get("prefix_psnr"))
-        data = _write(writer, patch, progress, times)
+        written = _write(writer, patch, progress, times)
+    data = written.data
     patch_idx = sketch.patch_idx[rows]
     source = np.concatenate(sketch.sources + [patch_idx[o] for o in patch.order]).astype(np.int64) \
         if (sketch.sources or len(patch_idx)) else np.zeros(0, np.int64)
@@ -149,8 +150,8 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
     stats = {
         "gaussians": len(cloud), "sketch_gaussians": int(sum(map(len, sketch.sources))),
         "patch_gaussians": int(len(patch_idx)), "patch_layers": len(writer.scene(patch).patch_layers),
-        "sketch": sketch.stats, "bytes": len(data), "sections": section_sizes(data),
-        "layer_ends": [layer["end_offset"] for layer in inspect(data).to_json()["layers"]],
+        "sketch": sketch.stats, "bytes": len(data), "sections": written.layout.section_bytes(),
+        "layer_ends": list(written.layout.stored_ends()),
         "seconds": times, **extra,
     }
     stats["sketch_error"] = sketch_error(data, cloud, source, stats["sketch_gaussians"])
@@ -241,7 +242,7 @@ def encode_sketch(cloud: GaussianCloud, refined: RefineResult | None, found: int
 def _encode_patch(cloud: GaussianCloud, sketch: SketchOutcome, writer: SceneWriter,
                   importance: np.ndarray, patch_encoder: PatchEncoder,
                   progress: ProgressFactory, times: dict[str, float]
-                  ) -> tuple[PatchEncoding, bytes]:
+                  ) -> tuple[PatchEncoding, WrittenFile]:
     """No-retrain patch layers of the Gaussians the sketch left, and the file they make."""
     patch_idx = sketch.patch_idx
     t = time.perf_counter()
@@ -253,19 +254,19 @@ def _encode_patch(cloud: GaussianCloud, sketch: SketchOutcome, writer: SceneWrit
 
 
 def _write(writer: SceneWriter, patch: PatchEncoding, progress: ProgressFactory,
-           times: dict[str, float]) -> bytes:
+           times: dict[str, float]) -> WrittenFile:
     t = time.perf_counter()
     stage = progress("write", None)
-    data = writer.write(patch)
-    stage.done(f"{len(data)} bytes")
+    written = writer.write_file(patch)
+    stage.done(f"{written.size} bytes")
     times["write"] = times.get("write", 0.0) + time.perf_counter() - t
-    return data
+    return written
 
 
 def _cap_sketch(cloud: GaussianCloud, refined: RefineResult | None, found: int,
                 sketch: SketchOutcome, writer: SceneWriter, config: EncoderConfig,
                 importance: np.ndarray,
-                file_of: Callable[[SketchOutcome, SceneWriter], bytes | None],
+                file_of: Callable[[SketchOutcome, SceneWriter], WrittenFile | None],
                 progress: ProgressFactory, times: dict[str, float], file_size: int | None = None
                 ) -> tuple[SketchOutcome, SceneWriter]:
     """Move the sketch clusters of least ``importance`` per Gaussian to the patch until the
@@ -274,9 +275,9 @@ def _cap_sketch(cloud: GaussianCloud, refined: RefineResult | None, found: int,
     that size whatever the sketch keeps: the sketch and its writer."""
     moved = 0
     while refined is not None and sketch.clusters and config.max_sketch_share is not None:
-        data = file_of(sketch, writer)
-        keep = None if data is None else \
-            _clusters_to_keep(data, refined, importance, config.max_sketch_share, file_size)
+        written = file_of(sketch, writer)
+        keep = None if written is None else \
+            _clusters_to_keep(written, refined, importance, config.max_sketch_share, file_size)
         if keep is None:
             break
         before = len(refined.patch)
@@ -288,7 +289,7 @@ def _cap_sketch(cloud: GaussianCloud, refined: RefineResult | None, found: int,
     return sketch, writer
 
 
-def _clusters_to_keep(data: bytes, refined: RefineResult, importance: np.ndarray,
+def _clusters_to_keep(written: WrittenFile, refined: RefineResult, importance: np.ndarray,
                       max_share: float, file_size: int | None = None) -> list[int] | None:
     """Which refined clusters to keep as sketch so that the sketch layer ends within
     ``max_share`` of the file, or of ``file_size`` when that is fixed (None: it already does).
@@ -300,20 +301,17 @@ def _clusters_to_keep(data: bytes, refined: RefineResult, importance: np.ndarray
     fills the rest with patch); solve for the share, with a 3 % margin for the difference
     between this estimate and the encoded result.
     """
-    info = inspect(data).to_json()
-    first = info["layers"][0]
-    end, total = first.get("inner_end_offset", first["end_offset"]), info["file_size"]
-    stored_end = end if first["end_offset"] is None else first["end_offset"]
-    if stored_end <= max_share * (file_size or info["stored_size"]):
+    layout = written.layout
+    end, total = layout.layer_ends[0], layout.file_size
+    if layout.stored_ends()[0] <= max_share * (file_size or written.size):
         return None
-    sketch_bytes = sum(sec["length"] for sec in info["sections"]
-                       if sec["type"].startswith("SKETCH"))
-    fixed, count = end - sketch_bytes, info["layers"][0]["gaussians"]
+    sketch_bytes = sum(sec.length for sec in layout.sections if sec.type.startswith("SKETCH"))
+    fixed, count = end - sketch_bytes, layout.layer_gaussians[0]
     share = 0.97 * max_share
     if file_size is not None:
         fraction = (share * file_size - fixed) / max(sketch_bytes, 1)
     else:
-        patch_bytes, patch_count = total - end, info["gaussians"] - count
+        patch_bytes, patch_count = total - end, sum(layout.layer_gaussians) - count
         per_patch = patch_bytes / patch_count if patch_count else sketch_bytes / max(count, 1)
         fraction = (share * (fixed + patch_bytes + count * per_patch) - fixed) / \
             (sketch_bytes * (1 - share) + share * count * per_patch)
@@ -338,14 +336,6 @@ def _importance_summary(patch: PatchConfig) -> str:
         return f"{patch.importance} proxy"
     width, height = patch.importance_resolution
     return f"blend weights over {patch.importance_views} training views of {width}x{height}"
-
-
-def section_sizes(data: bytes) -> dict[str, int]:
-    """Stored bytes per section type (summed over layers)."""
-    out: dict[str, int] = {}
-    for sec in inspect(data).to_json()["sections"]:
-        out[sec["type"]] = out.get(sec["type"], 0) + sec["length"]
-    return out
 
 
 def sketch_error(data: bytes, cloud: GaussianCloud, source: np.ndarray, count: int) -> dict:

@@ -14,9 +14,8 @@ from pathlib import Path
 
 from spcodec.cloud import GaussianCloud
 from spcodec.container import PREVIEW_PREFIX_SIZE, SectionEntry
-from spcodec.decoder import inspect
 from spcodec.errors import UsageError
-from spcodec.preview import attach_preview, choose_takeover
+from spcodec.preview import attach_preview_file, choose_takeover
 
 from .config import EncoderConfig
 from .presets import sized
@@ -39,7 +38,7 @@ def encode_with_preview(cloud: GaussianCloud, config: EncoderConfig, preview_siz
     deterministically), and otherwise with the scene's settings, so both are trained on the same
     views and their PSNR on them can be compared.
     """
-    from .pipeline import EncodeResult, encode, section_sizes
+    from .pipeline import EncodeResult, encode
 
     if preview_size <= PREVIEW_OVERHEAD:
         raise UsageError(f"a preview of {preview_size} bytes holds nothing: give more than "
@@ -65,10 +64,11 @@ def encode_with_preview(cloud: GaussianCloud, config: EncoderConfig, preview_siz
         config, target_size=config.target_size - len(preview.data) - PREVIEW_OVERHEAD)
     scene = encode(cloud, scene_config, progress, source_name, dataset, control)
     takeover = takeover_layer(scene.stats, preview.stats)
-    data = attach_preview(scene.data, preview.data, takeover)
-    layer_ends = [layer["end_offset"] for layer in inspect(data).to_json()["layers"]]
-    stats = dict(scene.stats, bytes=len(data), sections=section_sizes(data),
-                 layer_ends=layer_ends, preview=preview_stats(preview.stats, takeover))
+    written = attach_preview_file(scene.data, preview.data, takeover)
+    data = written.data
+    stats = dict(scene.stats, bytes=len(data), sections=written.layout.section_bytes(),
+                 layer_ends=list(written.layout.stored_ends()),
+                 preview=preview_stats(preview.stats, takeover))
     if "rate" in stats and config.target_size is not None:  # the target is the whole file's
         added = len(data) - len(scene.data)
         stats["rate"] = dict(stats["rate"], target_bytes=config.target_size,

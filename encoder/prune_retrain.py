@@ -24,6 +24,7 @@ from spcodec.imaging.importance import blend_weights
 from spcodec.imaging.render import RenderSettings, resolve_device
 from spcodec.imaging.training.checkpoint import Checkpointer, fingerprint
 from spcodec.imaging.training.targets import Targets, check_targets, dataset_targets, distillation_targets
+from spcodec.writer import WrittenFile
 
 from .config import EncoderConfig, RetrainConfig
 from .nested import NestedEncoder, layer_priority, layers_of, nested_groups, prefix_ends, prefix_schedule
@@ -97,14 +98,14 @@ def scene_weights(cloud: GaussianCloud, config: EncoderConfig,
 
 
 def factor_trial(sketch: SketchOutcome, patch: GaussianCloud, writer: SceneWriter,
-                 config: EncoderConfig, weights: np.ndarray) -> bytes | None:
+                 config: EncoderConfig, weights: np.ndarray) -> WrittenFile | None:
     """The file with the patch pruned by the retrain config's factor and coded without
     retraining: the retrained file's layout to within the gains of training, cheap enough to size
     the sketch layer's share before training. With a target size, the sketch alone (the file's
     size is the target whatever the sketch keeps); None with a target PSNR (the size is what
     quality control finds) or without retraining."""
     if config.target_size is not None:
-        return writer.write(None)
+        return writer.write_file(None)
     if config.retrain is None or config.target_psnr is not None:
         return None
     return _pruned_file(writer, PatchEncoder(config.patch, seed=config.seed), patch,
@@ -326,16 +327,16 @@ def _trial(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
            weights: np.ndarray):
     """count -> bytes of the file with the ``count`` most important patch Gaussians, coded
     without retraining (rate control's size model)."""
-    return lambda count: len(_pruned_file(writer, encoder, patch, weights, count))
+    return lambda count: _pruned_file(writer, encoder, patch, weights, count).size
 
 
 def _pruned_file(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
-                 weights: np.ndarray, count: int) -> bytes:
+                 weights: np.ndarray, count: int) -> WrittenFile:
     """The file with only the ``count`` most important patch Gaussians, coded as they are."""
     if count == 0:
-        return writer.write(None)
+        return writer.write_file(None)
     top = prune_by_importance(weights, count)
-    return writer.write(encoder.encode(patch.subset(top), importance=weights[top]))
+    return writer.write_file(encoder.encode(patch.subset(top), importance=weights[top]))
 
 
 def _judged_trial(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
@@ -343,7 +344,7 @@ def _judged_trial(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianClo
     """count -> close-up PSNR of the file with the ``count`` most important patch Gaussians,
     coded without retraining (quality control's first search)."""
     return lambda count: judge(decode_layers(
-        _pruned_file(writer, encoder, patch, weights, count)).cloud)
+        _pruned_file(writer, encoder, patch, weights, count).data).cloud)
 
 
 def _judged_quantized(writer: SceneWriter, encoder: PatchEncoder, trained: GaussianCloud,

@@ -14,7 +14,7 @@ import numpy as np
 
 from spcodec.cloud import GaussianCloud
 from spcodec.decoder import decode_layers
-from spcodec.writer import EncodedScene, WriteOptions, build_bitstream
+from spcodec.writer import EncodedScene, WriteOptions, WrittenFile, write_file
 
 from .patch import PatchEncoding
 
@@ -72,7 +72,12 @@ class SceneWriter:
         return EncodedScene(self.sh_degree, self.sketch, patch.codebooks, layers, self.metadata)
 
     def write(self, patch: PatchEncoding | None) -> bytes:
-        return build_bitstream(self.scene(patch), self.options)
+        return self.write_file(patch).data
+
+    def write_file(self, patch: PatchEncoding | None) -> WrittenFile:
+        """The file and its layout (section and layer extents), which trial files are judged
+        by without reading them back."""
+        return write_file(self.scene(patch), self.options)
 
     def with_prefix_psnr(self, prefix_psnr: list[dict] | None) -> SceneWriter:
         """This writer with the file's per-prefix PSNR on the training views in its metadata

@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import math
 
-from .codecs import gunzip, gzip_wrap, is_gzip
+from .codecs import gunzip, is_gzip
 from .container import Codec, SectionType
 from .decoder import Header, decode_layers, read_header
 from .errors import UsageError
 from .limits import DEFAULT_LIMITS
-from .writer import LayerSpec, Preview, SectionSpec, assemble, layer_end_offsets
+from .writer import LayerSpec, Preview, SectionSpec, WrittenFile, assemble_file, gzip_file
 
 
 def attach_preview(scene: bytes, preview: bytes, takeover_layer: int,
@@ -26,6 +26,12 @@ def attach_preview(scene: bytes, preview: bytes, takeover_layer: int,
     PREVIEW section holds a plain file. The result is gzip-wrapped when ``gzip`` says so, or,
     with None, when ``scene`` was. A scene that already has a preview has it replaced.
     """
+    return attach_preview_file(scene, preview, takeover_layer, gzip).data
+
+
+def attach_preview_file(scene: bytes, preview: bytes, takeover_layer: int,
+                        gzip: bool | None = None) -> WrittenFile:
+    """:func:`attach_preview` with the layout of the file it makes."""
     wrapped = is_gzip(scene)
     inner, small = _whole_file(scene, "the scene"), _whole_file(preview, "the preview")
     header = read_header(inner, DEFAULT_LIMITS)
@@ -42,10 +48,8 @@ def attach_preview(scene: bytes, preview: bytes, takeover_layer: int,
     sections.insert(at, SectionSpec(SectionType.PREVIEW, 0, Preview(small, takeover_layer).payload(),
                                     Codec.NONE, required=False))
     layers = [LayerSpec(layer.kind, layer.gaussian_count) for layer in header.layers]
-    data = assemble(sections, layers, header.sh_degree)
-    if wrapped if gzip is None else gzip:
-        return gzip_wrap(data, layer_end_offsets(data))
-    return data
+    written = assemble_file(sections, layers, header.sh_degree)
+    return gzip_file(written) if (wrapped if gzip is None else gzip) else written
 
 
 def choose_takeover(prefix_psnr: list[dict] | None, layer_count: int,

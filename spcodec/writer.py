@@ -13,12 +13,12 @@ code path.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .attributes import PatchAttribute
-from .codecs import compress, crc32, gzip_wrap
+from .codecs import compress, crc32, gzip_wrap, read_gzip_layer_ends
 from .container import (
     FIXED_HEADER_SIZE,
     LAYER_DTYPE,
@@ -125,6 +125,58 @@ class LayerSpec:
     end_offset: int | None = None
 
 
+@dataclass(frozen=True)
+class SectionExtent:
+    """Where one section lies in the unwrapped file, as its table-of-contents entry says."""
+
+    type: str
+    """The section type's name (``SectionType``), e.g. ``PATCH_ATTRIBUTES``."""
+    layer: int
+    offset: int
+    length: int
+    """Stored bytes (after the section codec)."""
+
+
+@dataclass(frozen=True)
+class FileLayout:
+    """The byte layout of a file the writer made: what an encoder sizing trial files needs,
+    without reading the file back through the decoder."""
+
+    sections: tuple[SectionExtent, ...]
+    layer_gaussians: tuple[int, ...]
+    layer_ends: tuple[int, ...]
+    """End offset of each layer in the unwrapped file (the layer table's)."""
+    file_size: int
+    """The unwrapped file's size (the header's)."""
+    stored_layer_ends: tuple[int, ...] | None = None
+    """End offset of each layer in the bytes as stored: the gzip member's recorded offsets
+    when wrapped, else None (then they are ``layer_ends``)."""
+
+    def section_bytes(self) -> dict[str, int]:
+        """Stored bytes per section type, summed over layers."""
+        out: dict[str, int] = {}
+        for sec in self.sections:
+            out[sec.type] = out.get(sec.type, 0) + sec.length
+        return out
+
+    def stored_ends(self) -> tuple[int, ...]:
+        """Each layer's end in the bytes as stored (what a range request asks for)."""
+        return self.layer_ends if self.stored_layer_ends is None else self.stored_layer_ends
+
+
+@dataclass(frozen=True)
+class WrittenFile:
+    """A file and its layout."""
+
+    data: bytes
+    layout: FileLayout
+
+    @property
+    def size(self) -> int:
+        """Bytes as stored (gzip-wrapped when the file is)."""
+        return len(self.data)
+
+
 def assemble(sections: list[SectionSpec], layers: list[LayerSpec], sh_degree: int,
              level: int | None = None, header_overrides: dict | None = None,
              store_when_larger: bool = True) -> bytes:
@@ -134,9 +186,17 @@ def assemble(sections: list[SectionSpec], layers: list[LayerSpec], sh_degree: in
     (codec none) instead. The version is 1.0, or 1.1 when a ``PREVIEW`` section needs it ([R-92]:
     the oldest minor version that expresses the file).
     """
+    return assemble_file(sections, layers, sh_degree, level, header_overrides,
+                         store_when_larger).data
+
+
+def assemble_file(sections: list[SectionSpec], layers: list[LayerSpec], sh_degree: int,
+                  level: int | None = None, header_overrides: dict | None = None,
+                  store_when_larger: bool = True) -> WrittenFile:
+    """:func:`assemble` with the layout it laid out."""
     start = header_size(len(layers), len(sections))
     toc = np.zeros(len(sections), dtype=SECTION_DTYPE)
-    bodies, offset = [], start
+    bodies, offset, extents = [], start, []
     layer_ends = [start] * len(layers)
     for i, sec in enumerate(sections):
         codec, stored = sec.codec, sec.stored
@@ -150,13 +210,15 @@ def assemble(sections: list[SectionSpec], layers: list[LayerSpec], sh_degree: in
                   sec.raw_length if sec.raw_length is not None else len(sec.raw),
                   sec.crc if sec.crc is not None else crc32(stored), 0)
         bodies.append(stored)
+        extents.append(SectionExtent(_type_name(sec.type), sec.layer, offset, len(stored)))
         offset += len(stored)
         if sec.layer < len(layers):
             layer_ends[sec.layer] = offset
     table = np.zeros(len(layers), dtype=LAYER_DTYPE)
     for i, layer in enumerate(layers):
-        end = layer.end_offset if layer.end_offset is not None else layer_ends[i]
-        table[i] = (int(layer.kind), b"\0\0\0", layer.gaussian_count, end)
+        if layer.end_offset is not None:
+            layer_ends[i] = layer.end_offset
+        table[i] = (int(layer.kind), b"\0\0\0", layer.gaussian_count, layer_ends[i])
     minor = PREVIEW_MINOR if any(sec.type == SectionType.PREVIEW for sec in sections) \
         else VERSION_MINOR
     header = dict(magic=MAGIC, version_major=VERSION_MAJOR, version_minor=minor, flags=0,
@@ -167,7 +229,24 @@ def assemble(sections: list[SectionSpec], layers: list[LayerSpec], sh_degree: in
     block = FixedHeader.build(header) + table.tobytes() + toc.tobytes()
     assert len(block) == start - 4 or header_overrides, "header block size mismatch"
     block += crc32(block).to_bytes(4, "little")
-    return block + b"".join(bodies)
+    layout = FileLayout(tuple(extents), tuple(layer.gaussian_count for layer in layers),
+                        tuple(layer_ends), offset)
+    return WrittenFile(block + b"".join(bodies), layout)
+
+
+def _type_name(section_type: int) -> str:
+    try:
+        return SectionType(section_type).name
+    except ValueError:  # forged by the conformance generator
+        return f"UNKNOWN_{section_type}"
+
+
+def gzip_file(written: WrittenFile) -> WrittenFile:
+    """``written`` wrapped in gzip ([R-82]), its layers' stored ends the member's offsets."""
+    data = gzip_wrap(written.data, list(written.layout.layer_ends))
+    ends = read_gzip_layer_ends(data)
+    return WrittenFile(data, replace(written.layout,
+                                     stored_layer_ends=None if ends is None else tuple(ends)))
 
 
 def scene_sections(scene: EncodedScene, codec: Codec = Codec.ZLIB) -> tuple[list[SectionSpec],
@@ -203,12 +282,15 @@ def scene_sections(scene: EncodedScene, codec: Codec = Codec.ZLIB) -> tuple[list
 
 def build_bitstream(scene: EncodedScene, options: WriteOptions | None = None) -> bytes:
     """The complete file for ``scene`` (gzip-wrapped when ``options.gzip``)."""
+    return write_file(scene, options).data
+
+
+def write_file(scene: EncodedScene, options: WriteOptions | None = None) -> WrittenFile:
+    """:func:`build_bitstream` with the file's layout (section and layer extents)."""
     options = options or WriteOptions()
     sections, layers = scene_sections(scene, options.codec)
-    data = assemble(sections, layers, scene.sh_degree, options.level)
-    if options.gzip:
-        return gzip_wrap(data, layer_end_offsets(data))
-    return data
+    written = assemble_file(sections, layers, scene.sh_degree, options.level)
+    return gzip_file(written) if options.gzip else written
 
 
 def layer_end_offsets(data: bytes) -> list[int]:

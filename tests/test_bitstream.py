@@ -18,7 +18,7 @@ from spcodec.container import Codec
 from spcodec.errors import FormatError, TruncatedError
 from spcodec.polynomial import evaluate, normalize_positions
 from spcodec.synthetic import random_encoded_scene
-from spcodec.writer import EncodedScene, WriteOptions, build_bitstream
+from spcodec.writer import EncodedScene, WriteOptions, build_bitstream, write_file
 
 scenes = st.builds(
     random_encoded_scene,
@@ -167,6 +167,28 @@ def test_layer_end_offsets_increase_strictly(scene, wrap):
     layers = spcodec.inspect(build_bitstream(scene, WriteOptions(gzip=wrap))).to_json()["layers"]
     ends = [layer.get("inner_end_offset", layer["end_offset"]) for layer in layers]
     assert all(a < b for a, b in zip(ends, ends[1:]))
+
+
+@given(scenes, codecs, st.booleans())
+def test_the_writer_reports_the_layout_the_decoder_reads(scene, codec, wrap):
+    """The section and layer extents the writer returns are the file's own table of contents
+    and layer table (and, wrapped, the gzip member's recorded offsets): what the encoder sizes
+    trial files by, without reading them back."""
+    written = write_file(scene, WriteOptions(codec=codec, gzip=wrap))
+    assert written.data == build_bitstream(scene, WriteOptions(codec=codec, gzip=wrap))
+    info = spcodec.inspect(written.data).to_json()
+    layout = written.layout
+    assert [(s.type, s.layer, s.offset, s.length) for s in layout.sections] == \
+        [(s["type"], s["layer"], s["offset"], s["length"]) for s in info["sections"]]
+    assert list(layout.stored_ends()) == [layer["end_offset"] for layer in info["layers"]]
+    assert list(layout.layer_ends) == [layer.get("inner_end_offset", layer["end_offset"])
+                                       for layer in info["layers"]]
+    assert list(layout.layer_gaussians) == [layer["gaussians"] for layer in info["layers"]]
+    assert layout.file_size == info["file_size"] and written.size == info["stored_size"]
+    totals: dict[str, int] = {}
+    for sec in info["sections"]:
+        totals[sec["type"]] = totals.get(sec["type"], 0) + sec["length"]
+    assert layout.section_bytes() == totals
 
 
 @settings(max_examples=20)

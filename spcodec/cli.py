@@ -117,8 +117,8 @@ def _add_decode(p: argparse.ArgumentParser) -> None:
                    ".glb that 'spcodec embed' wrote")
     p.add_argument("-o", "--output", required=True,
                    help="the file to write: a 3DGS PLY (INRIA layout; a .ply name, a device or "
-                   "- for standard output), or with a .glb name a binary glTF with "
-                   "KHR_gaussian_splatting")
+                   "- for standard output), with a .glb name a binary glTF with "
+                   "KHR_gaussian_splatting, or with a .spz name a Niantic SPZ (v3)")
     p.add_argument("--max-layer", type=MAX_LAYER, default=None, metavar="K",
                    help="decode layers 0..K only (0 = the sketch layer alone); %(type)s "
                    "(default: every layer)")
@@ -138,9 +138,9 @@ def cmd_decode(args: argparse.Namespace) -> int:
     if suffix == ".gltf":
         raise UsageError(f"cannot write {args.output}: name it .glb (binary glTF); text .gltf with "
                          "a separate buffer is not supported")
-    if suffix not in ("", ".ply", ".glb"):
+    if suffix not in ("", ".ply", ".glb", ".spz"):
         raise UsageError(f"cannot write {args.output}: decode writes a 3DGS PLY (.ply, or - for "
-                         f"standard output) or a binary glTF (.glb), not {suffix}")
+                         f"standard output), a binary glTF (.glb) or an SPZ (.spz), not {suffix}")
     refuse_same_file(args.output, args.input)
     check_writable(args.output)
     if args.preview and args.max_layer is not None:
@@ -157,6 +157,9 @@ def cmd_decode(args: argparse.Namespace) -> int:
     elapsed = time.perf_counter() - start
     if suffix == ".glb":  # upright in glTF's +Y, from the up axis the file stores
         write_glb(args.output, cloud, up=(inspect(source).metadata or {}).get("up"))
+    elif suffix == ".spz":  # Niantic SPZ v3 (gzip), which every SPZ reader opens
+        from .formats import write_scene
+        write_scene(args.output, cloud, "spz")
     else:
         write_ply(args.output, cloud)
     print(f"decoded {len(cloud)} Gaussians ({counts}) in {elapsed * 1000:.0f} ms -> "
@@ -215,6 +218,10 @@ def cmd_info(args: argparse.Namespace) -> int:
     from .decoder import inspect
     from .decoder.api import verify_sections
 
+    other = _other_scene_file(args.input)
+    if other is not None:  # an SPZ, .splat, SOG... : one line on it instead of "bad magic"
+        print(json.dumps(other) if args.json else f"{args.input}: {other['description']}")
+        return EXIT_OK
     source = spc_source(args.input)
     doc = inspect(source).to_json()
     if args.verify:  # before any output: a damaged file gets the error line alone
@@ -252,6 +259,23 @@ def cmd_info(args: argparse.Namespace) -> int:
     if args.verify:
         print(f"all {doc['verified_sections']} sections verified (CRC-32)")
     return EXIT_OK
+
+
+def _other_scene_file(path: str) -> dict | None:
+    """For ``info``: a scene file of another tool (SPZ, .splat, SOG, .ksplat, PLY) described in
+    one line, or None for an .spc, a .glb or anything unrecognized (which ``inspect`` judges)."""
+    from . import formats
+
+    if not (os.path.isfile(path) or os.path.isdir(path)):
+        return None
+    fmt = formats.detect(path)
+    if fmt is None or fmt.key == "spc":
+        return None
+    text = formats.describe(path) if fmt.describe else None
+    if text is None:
+        cloud = formats.read_scene(path)
+        text = f"{fmt.name}, {len(cloud):,} Gaussians, SH degree {cloud.sh_degree}"
+    return {"format": fmt.key, "description": f"{text} (not an .spc; 'spcodec encode' reads it)"}
 
 
 def _preview_line(preview: dict) -> str:
@@ -497,7 +521,9 @@ def cmd_conformance(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------------- encode
 def _add_encode(p: argparse.ArgumentParser) -> None:
-    p.add_argument("input", help="a trained 3DGS scene (.ply, INRIA layout or compressed.ply)")
+    p.add_argument("input", help="a trained 3DGS scene: a PLY (INRIA layout or compressed.ply), "
+                   "SPZ, antimatter15 .splat, PlayCanvas SOG (.sog or its folder) or .ksplat, "
+                   "recognized by content")
     p.add_argument("-o", "--output", required=True, help="the .spc file to write")
     p.add_argument("--preset", choices=["lowrate", "balanced", "highrate", "transparent"],
                    default="balanced",
@@ -624,7 +650,8 @@ def cmd_encode(args: argparse.Namespace) -> int:
     from .encoder.progress import StageReporter, print_summary
     from .encoder.ratecontrol import parse_size
     from .fileio import atomic_write, check_writable, refuse_same_file
-    from .ply import check_finite, read_ply
+    from .formats import read_scene
+    from .ply import check_finite
 
     refuse_same_file(args.output, args.input)
     check_writable(args.output)
@@ -634,7 +661,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
     config = encode_config(args)
     preview_size = parse_size(args.preview_size) if args.preview_size is not None else None
     control = run_control(args, config.retrain is not None)
-    cloud = read_ply(args.input)
+    cloud = read_scene(args.input)  # PLY, compressed.ply, SPZ, .splat, SOG, .ksplat by content
     check_finite(cloud)  # the pipeline checks too, but names only the first bad array
     reporter = StageReporter(enabled=not args.quiet)
     with _stop_on_ctrl_c(control):
@@ -770,15 +797,17 @@ def _stop_on_ctrl_c(control):
 
 # ---------------------------------------------------------------------------- eval, render
 def load_model(path: str, max_layer: int | None = None):
-    """A scene from an .spc (by its magic, gzip-wrapped or not) or from any 3DGS PLY."""
+    """A scene from an .spc (by its magic, gzip-wrapped or not) or from any scene file the
+    formats registry reads (PLY, SPZ, .splat, SOG, .ksplat; by content)."""
     from .decoder import decode
-    from .ply import check_finite, read_ply
+    from .formats import read_scene
+    from .ply import check_finite
 
     if _is_spc(path):
         return decode(path, max_layer=max_layer)
     if max_layer is not None:
         raise UsageError(f"--max-layer needs an .spc input; {path} is not one")
-    cloud = read_ply(path)
+    cloud = read_scene(path)
     try:
         check_finite(cloud)  # what encode refuses, render and eval refuse too
     except FormatError as exc:
@@ -787,12 +816,14 @@ def load_model(path: str, max_layer: int | None = None):
 
 
 def _is_spc(path: str) -> bool:
-    """An .spc by its magic, gzip-wrapped or not (whatever its name)."""
-    from .container import GZIP_MAGIC, MAGIC
+    """An .spc by its magic, gzip-wrapped or not (whatever its name; a gzip-wrapped SPZ is none)."""
+    from .formats import HEAD_BYTES, spc
 
+    if os.path.isdir(path):  # an unbundled SOG
+        return False
     with open(path, "rb") as fh:
-        head = fh.read(len(MAGIC))
-    return head == MAGIC or head[:2] == GZIP_MAGIC
+        head = fh.read(HEAD_BYTES)
+    return spc.sniff(head)
 
 
 def view_up(given: str | None, *paths: str | None) -> str:

@@ -9,6 +9,7 @@ from __future__ import annotations
 from . import (  # importing them declares their cases
     invalid_cases,
     preview_cases,
+    revision_cases,
     stream_cases,
     valid_cases,
 )
@@ -17,8 +18,9 @@ from .declare import CASES, Case
 __all__ = ["Case", "all_cases"]
 
 
-MODULES = (valid_cases, invalid_cases, stream_cases, preview_cases)
-"""The case modules in the suite's order: spec 1.0.1's cases after those of 1.0, then 1.1's."""
+MODULES = (valid_cases, invalid_cases, stream_cases, preview_cases, revision_cases)
+"""The case modules in the suite's order: spec 1.0.1's cases after those of 1.0, then 1.1's,
+then 1.1.1's."""
 
 
 def all_cases() -> list[Case]:

@@ -570,8 +570,10 @@ def unknown_required_0() -> bytes:
 
 
 # =================================================================== missing-section
-@invalid("layer-without-sections", "A fourth layer, of zero Gaussians, with no section",
-         "missing-section", ["R-9"])
+@invalid("layer-without-sections", "A fourth layer, of zero Gaussians, with no section; its "
+         "end_offset (where the header block ends) is neither the end of a section of its own "
+         "nor after the third layer's, so either code", "missing-section", ["R-9"],
+         also_accepted=("bad-layout",))
 def layer_without_sections() -> bytes:
     draft = base()
     draft.layers.append(LayerSpec(LayerKind.PATCH, 0))

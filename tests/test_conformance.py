@@ -117,6 +117,46 @@ def test_a_rejection_is_checked_for_its_reason():
                for r in report.results)
 
 
+class EndOffsetsFirst(InProcessDecoder):
+    """A decoder that compares layers' end offsets before it looks for their sections (as one
+    written from the spec alone did): a layer without sections is bad-layout to it."""
+
+    name = "end-offsets-first"
+
+    def decode(self, path, max_layer, sh_degree):
+        out = super().decode(path, max_layer, sh_degree)
+        return Decode(error="bad-layout") if out.error == "missing-section" and \
+            "without-sections" in str(path) else out
+
+
+def test_a_layer_without_sections_is_either_code():
+    """[R-9], spec 1.1.1: a layer without sections fails missing-section and its end offset
+    check; no order between them is prescribed, so the vector accepts both codes, and a decoder
+    that checks end offsets first passes it."""
+    vector = next(v for v in SUITE.vectors if v.id == "layer-without-sections")
+    outcome = vector.outcomes[0]
+    assert (outcome.error, outcome.also_accepted) == ("missing-section", ("bad-layout",))
+    assert run_suite(EndOffsetsFirst(), only=["layer-without-sections"]).ok
+    assert run_suite(OneCodeForAll(), only=["layer-without-sections"]).failed_vectors == \
+        ["layer-without-sections"]
+
+
+def test_the_vectors_of_spec_1_1_1_pin_both_sides():
+    """spec 1.1.1: the decisions of its CHANGELOG entry, one vector per side of each line."""
+    outcomes = {v.id: v.outcomes[0] for v in SUITE.vectors}
+    valid = ["gzip-cut-after-empty-code-length-code", "zstd-match-beyond-window"]
+    invalid = {"gzip-empty-code-length-code-read-out": "bad-gzip",
+               "zstd-literal-stream-bits-left": "decompression-failed",
+               "zstd-block-over-maximum": "decompression-failed",
+               "zstd-match-before-frame-start": "decompression-failed",
+               "zstd-literals-length-past-literals": "decompression-failed",
+               "zstd-sequence-bits-left": "decompression-failed"}
+    assert all(outcomes[v].accepts for v in valid)
+    assert {v: outcomes[v].error for v in invalid} == invalid
+    assert all("zstd" in outcomes[v].needs for v in invalid if v.startswith("zstd"))
+    assert SUITE.spec_version == "1.1.1"
+
+
 # -------------------------------------------------------------------------------- coverage
 def test_every_checkable_requirement_is_exercised_by_a_vector():
     """Annex D: each requirement a decoder can check is cited by at least one vector."""

@@ -44,7 +44,8 @@ export class OutputLimitError extends Error {}
 /**
  * Build the decoding table of a canonical Huffman code, with zlib's validity rules: an
  * over-subscribed code is invalid; an incomplete one is valid only for literal/length and distance
- * codes of a single one-bit code (zlib's one exception); a code without symbols only for distances.
+ * codes of a single one-bit code (zlib's one exception); a code without symbols for distances
+ * (any match then fails) and for code lengths (each symbol is then one bit meaning length 0).
  * @param {Uint8Array} lengths code length of each symbol (0: unused)
  * @param {'codes'|'lens'|'dists'} kind
  * @returns {HuffmanTable}
@@ -55,6 +56,10 @@ function buildTable(lengths, kind) {
   let maxBits = 15;
   while (maxBits > 0 && count[maxBits] === 0) maxBits--;
   if (maxBits === 0) {
+    // zlib accepts a code length code without symbols when it reads it: each code-length symbol
+    // is then one bit, of either value, meaning length 0, so the block fails only once all its
+    // lengths are read, for want of an end-of-block code ([R-22], [R-81])
+    if (kind === 'codes') return { table: new Uint16Array([1, 1]), bits: 1 };
     if (kind !== 'dists') throw new DeflateError(`empty ${kind} code`);
     return { table: new Uint16Array(2), bits: 1 };
   }

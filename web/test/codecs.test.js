@@ -152,6 +152,61 @@ test('zstd sections: frames with and without checksums, and what a frame may not
   assert.equal(decompress(ZSTD, frame(content, false), 10).length, 10);
 });
 
+test('deflate: a code length code without symbols fails once its lengths are read (zlib)', () => {
+  // BFINAL 0, BTYPE 2, HLIT 0, HDIST 0, HCLEN 0, four lengths 0: then one bit per code length
+  const header = [0x04, 0x00, 0x00, 0x00]; // 29 header bits and 3 one-bit lengths
+  const feed = (extra) => {
+    const inf = new RawInflater(1000);
+    inf.append(new Uint8Array([...header, ...new Array(extra).fill(0xFF)]));
+    return inf.run();
+  };
+  assert.equal(feed(0), false, 'waits for more input: 3 of 258 lengths read');
+  assert.equal(feed(31), false, '251 of 258 lengths read');
+  assert.throws(() => feed(32), /missing end-of-block/);
+});
+
+test('zstd sections: the rules of [R-22] where libzstd and fzstd differed (spec 1.1.1)', () => {
+  // each: a frame that must fail, the same frame made right, its content size (hand-made by the
+  // conformance generator's zstd_bits.py)
+  const pairs = [
+    ['a Huffman stream with 8 bits left over', '28b52ffd20c8650500860c2aef00000000000000000000000000000000000000000000000000000000000000000000000000000000000000000000000001111111111111111a001b001a0007294b6d8fa1c3e507294b6d8fa1c3e507294b6d8fa1c3e5070100e507294b6d8fa1c3e507294b6d8fa1c3e507294b6d8fa1c3e501c3e507294b6d8fa1c3e507294b6d8fa1c3e507294b6d8fa1c301a1c3e507294b6d8fa1c3e507294b6d8fa1c3e507294b6d8fa10100', '28b52ffd20c85d050086cc29ef00000000000000000000000000000000000000000000000000000000000000000000000000000000000000000000000001111111111111111a001a001a0007294b6d8fa1c3e507294b6d8fa1c3e507294b6d8fa1c3e50701e507294b6d8fa1c3e507294b6d8fa1c3e507294b6d8fa1c3e501c3e507294b6d8fa1c3e507294b6d8fa1c3e507294b6d8fa1c301a1c3e507294b6d8fa1c3e507294b6d8fa1c3e507294b6d8fa10100', 200],
+    ['a match before the start of the frame', '28b52ffd80000b0000007d0000406162636465666768015408040017', '28b52ffd80000b0000007d000040616263646566676801540803000b', 11],
+    ['a literals length past the literals', '28b52ffd8000090000005d00002061626364015406020004', '28b52ffd8000090000006d000030616263646566015406020004', 9],
+    ['sequence bits left over', '28b52ffd8000080000005d00002061626364015404020120', '28b52ffd8000080000005d00002061626364015404020104', 8],
+    ['a repeated offset of 1 - 1 = 0', '28b52ffd800007000000200000616263643d000000015400010003', '28b52ffd800007000000200000616263643d000000015400000001', 7],
+    ['a block decoding past the block maximum', '28b52ffd40001a034d00000861015401022e1610', '28b52ffd400000034d00000861015401022dfc09', 1024],
+  ];
+  const hex = (h) => new Uint8Array(Buffer.from(h, 'hex'));
+  for (const [name, bad, good, size] of pairs) {
+    const badSize = name.startsWith('a block') ? 1050 : size;
+    assert.throws(() => inflateZstd(hex(bad), badSize), { code: 'decompression-failed' }, name);
+    assert.equal(inflateZstd(hex(good), size).length, size, name);
+  }
+  // an FSE table description that libzstd's reader continues past the block (it goes on from
+  // the block's last four bytes again): libzstd decodes this frame, the spec refuses it
+  const wrapped = hex('28b52ffd800039000000dd0000806162636465666768696a6b6c6d6e6f7001800128868b2602953c');
+  assert.throws(() => inflateZstd(wrapped, 57), { code: 'decompression-failed' });
+  // window 1 KiB, two raw blocks of 1000 bytes, then a match 2000 bytes back: valid
+  const first = new Uint8Array(1000).map((_, i) => i % 250);
+  const raw = (data, last) => [(data.length << 3) | (last ? 1 : 0), data.length >> 5, data.length >> 13, ...data];
+  const far = new Uint8Array([...hex('28b52ffd4000b80a'), ...raw(first, false),
+    ...raw(new Uint8Array(1000).fill(121), false), ...hex('4d0000000154000a2de5a70f')]);
+  const out = inflateZstd(far, 3000);
+  assert.deepEqual(out.subarray(2000), first);
+  // content size 0: an RLE block of 0 bytes (libzstd's streaming decoder takes its byte for a
+  // block over the block maximum of 0)
+  assert.equal(inflateZstd(hex('28b52ffd20000000000300006b'), 0).length, 0);
+  // window 1 KiB, content 1025: a raw or an RLE block of 1025 bytes is over the block maximum
+  const head1025 = hex('28b52ffd40000103');
+  const rawBig = new Uint8Array([...head1025, 0x09, 0x20, 0x00, ...new Uint8Array(1025)]);
+  assert.throws(() => inflateZstd(rawBig, 1025), { code: 'decompression-failed' });
+  const rleBig = new Uint8Array([...head1025, 0x0B, 0x20, 0x00, 0x72]);
+  assert.throws(() => inflateZstd(rleBig, 1025), { code: 'decompression-failed' });
+  // ... and a compressed block needs at least 2 bytes
+  const tiny = new Uint8Array([...hex('28b52ffd40000000'), 0x05, 0x00, 0x00]);
+  assert.throws(() => inflateZstd(tiny, 256), { code: 'decompression-failed' });
+});
+
 test('gzip reader: prefixes at flush points inflate to exact inner prefixes', () => {
   const inner = samples()[4];
   const stops = [1000, 50000, 120000];

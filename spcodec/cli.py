@@ -531,7 +531,8 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
                    "downsample; transparent keeps every Gaussian, never retrains, and aims to "
                    "look like the input in a viewer (default: %(default)s)")
     p.add_argument("--codec", choices=["zlib", "zstd"], default="zlib",
-                   help="section codec; zlib: every decoder reads it, zstd: faster to decode "
+                   help="section codec; zlib: every decoder reads it and the Python one "
+                   "fastest, zstd: optional, each frame checked against spec 1.1.1's rules "
                    "(default: %(default)s)")
     p.add_argument("--gzip", action="store_true", help="wrap the file in gzip (default: off)")
     p.add_argument("--no-sketch", action="store_true",
@@ -561,8 +562,10 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
     size.add_argument("--target-size", metavar="SIZE",
                       help="a file of at most SIZE bytes: 150k, 2MB, 300000 (k, M "
                       "decimal; KiB, MiB binary); sets how many patch Gaussians survive pruning "
-                      "and, below 8,192 of them, shrinks the codebooks to match (default: none, "
-                      "the preset's downsample)")
+                      "and, below 8,192 of them, shrinks the codebooks to match; with "
+                      "--no-retrain, a size above the preset's file keeps every Gaussian and "
+                      "raises the precision instead, each attribute's codebook chosen by rate "
+                      "and predicted distortion (default: none, the preset's downsample)")
     size.add_argument("--target-psnr", type=Bounded(float, 10, 100), metavar="DB",
                       help="the smallest file whose close-up (eval's views at half the distance, "
                       "800x800) reaches DB against the input: %(type)s; sets how many patch "
@@ -883,32 +886,52 @@ def _add_eval(p: argparse.ArgumentParser) -> None:
                    metavar="PX2", help="the screen-space low-pass (pixels^2) both sides render "
                    "with: 0.3 is INRIA's, with which published test PSNR is measured, 0.075 "
                    "PlayCanvas's: %(type)s (default: %(default)s)")
+    p.add_argument("--no-cache", action="store_true",
+                   help="with --reference, render the reference anew instead of reusing its "
+                   "renders from the render cache ($XDG_CACHE_HOME/spcodec/renders, else "
+                   "~/.cache/spcodec/renders), and store none (default: use the cache)")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress display on stderr (default: off)")
     _add_view_options(p)
 
 
 @command("eval", "measure PSNR/SSIM (and LPIPS when available) against a dataset or a reference",
          _add_eval)
 def cmd_eval(args: argparse.Namespace) -> int:
+    from .encoder.progress import StageReporter
     from .fileio import check_writable_folder
+    from .imaging.cache import default_cache_dir
     from .imaging.evaluate import (
         EvalConfig,
         evaluate_against_dataset,
         evaluate_against_reference,
+        freed_memory_kept,
     )
 
     save = check_writable_folder(args.save_renders) if args.save_renders else None
     check_device(args.device)
-    model = load_model(args.input, args.max_layer)
-    reference = load_model(args.reference) if args.reference else None
-    config = EvalConfig(views=args.views, resolution=args.resolution, downscale=args.downscale,
-                        device=args.device, up=view_up(args.up, args.input, args.reference),
-                        antialiased=args.antialiased, save_renders=save, closeups=args.closeups,
-                        closeup_resolution=args.closeup_resolution,
-                        blur_variance=args.blur_variance)
-    if args.dataset:
-        report = evaluate_against_dataset(model, Path(args.dataset), config)
-    else:
-        report = evaluate_against_reference(model, reference, config)
+    # on stderr (stdout is the report's), for the stages that last over 2 s
+    reporter = StageReporter(enabled=not args.quiet, delay=2.0)
+    try:
+        with freed_memory_kept():  # the renderer's big temporaries: a fifth less CPU time
+            model = load_model(args.input, args.max_layer)  # tenths of a second: no stage
+            reference = load_model(args.reference) if args.reference else None
+            config = EvalConfig(views=args.views, resolution=args.resolution,
+                                downscale=args.downscale, device=args.device,
+                                up=view_up(args.up, args.input, args.reference),
+                                antialiased=args.antialiased, save_renders=save,
+                                closeups=args.closeups,
+                                closeup_resolution=args.closeup_resolution,
+                                blur_variance=args.blur_variance,
+                                cache=None if args.no_cache else default_cache_dir(),
+                                progress=reporter.stage)
+            if args.dataset:
+                report = evaluate_against_dataset(model, Path(args.dataset), config)
+            else:
+                report = evaluate_against_reference(model, reference, config)
+    except BaseException:
+        reporter.interrupt()  # an error or Ctrl-C starts a line of its own
+        raise
     if args.json:
         print(json.dumps(report.to_json(), indent=2, allow_nan=False))
     else:

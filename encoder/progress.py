@@ -2,7 +2,11 @@
 
 On a terminal a counted stage shows a tqdm bar (rate, ETA and the figures the stage reports, such
 as a training step's loss and PSNR); elsewhere (a log file, CI) it prints a line every 5 % with
-the same figures, so a long run is never silent.
+the same figures, so a long run is never silent. Everything goes to standard error, never to
+standard output (where ``--json`` documents go).
+
+With ``delay`` (``spcodec eval`` uses 2 s) a stage shows nothing until it has run that long: a
+quick command prints only its result, a long stage still gets its bar or lines and its summary.
 """
 
 from __future__ import annotations
@@ -19,20 +23,36 @@ _LOG_STEPS = 20
 
 
 class _PrintedStage(Stage):
-    def __init__(self, name: str, total: int | None, index: int, enabled: bool) -> None:
+    def __init__(self, name: str, total: int | None, index: int, enabled: bool,
+                 delay: float = 0.0) -> None:
         self.name, self.index, self.enabled, self.total = name, index, enabled, total
+        self.delay = delay
         self.start = time.perf_counter()
         self.count = 0
         self.earlier = 0
         """Steps an earlier run did (resumed): counted as done, not in this run's rate."""
         self.bar = None
+        self.shown = False
+        """Whether anything of this stage was printed yet (its first line waits for ``delay``)."""
         if enabled:
             if total and sys.stderr.isatty():
                 from tqdm import tqdm
                 self.bar = tqdm(total=total, desc=f"[{index}] {name}", leave=False,
-                                file=sys.stderr, dynamic_ncols=True)
-            else:
-                print(f"[{index}] {name} ...", file=sys.stderr, flush=True)
+                                file=sys.stderr, dynamic_ncols=True, delay=delay)
+                self.shown = not delay
+            elif not delay:
+                self._announce()
+
+    def _announce(self) -> None:
+        """The stage's first line (once), unless a bar stands for it."""
+        if not self.shown:
+            self.shown = True
+            if self.bar is None:
+                print(f"[{self.index}] {self.name} ...", file=sys.stderr, flush=True)
+
+    def _due(self) -> bool:
+        """Whether the stage has run long enough to be shown."""
+        return self.shown or time.perf_counter() - self.start >= self.delay
 
     def resumed(self, count: int) -> None:
         self.count = self.earlier = count
@@ -52,7 +72,8 @@ class _PrintedStage(Stage):
             if shown:
                 self.bar.set_postfix(shown, refresh=False)
             self.bar.update(count)
-        elif self.enabled and self.total and self._log_due(count):
+        elif self.enabled and self.total and self._log_due(count) and self._due():
+            self._announce()
             elapsed = time.perf_counter() - self.start
             rate = (self.count - self.earlier) / elapsed if elapsed > 0 else 0.0
             eta = (self.total - self.count) / rate if rate > 0 else float("nan")
@@ -63,6 +84,7 @@ class _PrintedStage(Stage):
 
     def note(self, message: str) -> None:
         if self.enabled:
+            self._announce()
             self._say(f"[{self.index}] {message}")
 
     def _say(self, line: str) -> None:
@@ -79,13 +101,14 @@ class _PrintedStage(Stage):
         if self.bar is not None:
             self.bar.close()
             self.bar = None
-        elif self.enabled and self.total and self.count % max(1, self.total // _LOG_STEPS):
+        elif self.enabled and self.shown and self.total and \
+                self.count % max(1, self.total // _LOG_STEPS):
             print(file=sys.stderr, flush=True)
 
     def done(self, summary: str = "") -> None:
         if self.bar is not None:
             self.bar.close()
-        if self.enabled:
+        if self.enabled and self._due():
             elapsed = time.perf_counter() - self.start
             print(f"[{self.index}] {self.name}: {summary} ({elapsed:.1f} s)", file=sys.stderr,
                   flush=True)
@@ -100,15 +123,17 @@ def _clock(seconds: float) -> str:
 
 
 class StageReporter:
-    """Creates numbered stage reporters; pass ``reporter.stage`` as the pipeline's progress."""
+    """Creates numbered stage reporters; pass ``reporter.stage`` as the pipeline's progress.
 
-    def __init__(self, enabled: bool = True) -> None:
-        self.enabled, self.count = enabled, 0
+    ``delay``: seconds a stage runs before anything of it is shown (0: at once)."""
+
+    def __init__(self, enabled: bool = True, delay: float = 0.0) -> None:
+        self.enabled, self.count, self.delay = enabled, 0, delay
         self.current: _PrintedStage | None = None
 
     def stage(self, name: str, total: int | None) -> Stage:
         self.count += 1
-        self.current = _PrintedStage(name, total, self.count, self.enabled)
+        self.current = _PrintedStage(name, total, self.count, self.enabled, self.delay)
         return self.current
 
     def interrupt(self) -> None:

@@ -281,7 +281,8 @@ def sample_views_report(cloud: GaussianCloud, count: int, resolution: tuple[int,
                         split: str = "train", seed: int = 0, fov_y_deg: float = 50.0,
                         up: Sequence[float] | str = DEFAULT_UP,
                         elevation_deg: tuple[float, float] = (-15.0, 65.0), fill: float = 0.9,
-                        min_coverage: float = MIN_COVERAGE) -> list[SampledView]:
+                        min_coverage: float = MIN_COVERAGE,
+                        bounds: SceneBounds | None = None) -> list[SampledView]:
     """:func:`sample_views` with each view's coverage check and whether it passed."""
     if split not in ("train", "eval"):
         raise UsageError(f"split must be 'train' or 'eval', got {split!r}")
@@ -298,7 +299,7 @@ def sample_views_report(cloud: GaussianCloud, count: int, resolution: tuple[int,
         raise UsageError("fov_y_deg must be in (0, 170) and fill in (0, 1]")
     up_vector = parse_up(up)
     fov_y = math.radians(fov_y_deg)
-    bounds = robust_bounds(cloud)
+    bounds = bounds or robust_bounds(cloud)
     rng = np.random.default_rng([seed, 0 if split == "train" else 1])
     start = np.random.default_rng(seed).uniform(0.0, 2.0 * math.pi)  # shared by both splits
     if split == "eval":
@@ -334,14 +335,18 @@ def sample_views(cloud: GaussianCloud, count: int, resolution: tuple[int, int] =
                  split: str = "train", seed: int = 0, fov_y_deg: float = 50.0,
                  up: Sequence[float] | str = DEFAULT_UP,
                  elevation_deg: tuple[float, float] = (-15.0, 65.0), fill: float = 0.9,
-                 min_coverage: float = MIN_COVERAGE) -> list[Camera]:
+                 min_coverage: float = MIN_COVERAGE,
+                 bounds: SceneBounds | None = None) -> list[Camera]:
     """``count`` deterministic cameras of ``resolution`` (width, height) around ``cloud``.
 
     ``split="train"`` and ``split="eval"`` give disjoint position sets for the same seed (see the
     module docstring for the strategy). Same arguments, same cameras, on every machine.
+    ``bounds``: ``robust_bounds(cloud)`` when the caller has it already (it is computed
+    otherwise; a caller that also needs the centre the views look at saves doing it twice).
     """
     return [v.camera for v in sample_views_report(
-        cloud, count, resolution, split, seed, fov_y_deg, up, elevation_deg, fill, min_coverage)]
+        cloud, count, resolution, split, seed, fov_y_deg, up, elevation_deg, fill, min_coverage,
+        bounds=bounds)]
 
 
 def _adjustments(elevation: float, middle: float) -> list[tuple[float, float]]:

@@ -1,0 +1,140 @@
+"""Progress display: on standard error only, a bar or lines with an ETA, quiet for quick stages."""
+
+from __future__ import annotations
+
+import io
+import json
+import sys
+import time
+from types import SimpleNamespace
+
+import pytest
+
+import spcodec
+from spcodec.cli import main
+from spcodec.encoder import progress
+from spcodec.encoder.progress import StageReporter
+from spcodec.synthetic import make_scene
+
+
+@pytest.fixture(scope="module")
+def ply(tmp_path_factory):
+    path = tmp_path_factory.mktemp("progress") / "s.ply"
+    spcodec.write_ply(path, make_scene(11, curves=6, per_curve=150, blobs=800).cloud)
+    return path
+
+
+class Clock:
+    """A stand-in for time.perf_counter that the test moves."""
+
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+@pytest.fixture
+def clock(monkeypatch):
+    fake = Clock()
+    monkeypatch.setattr(progress, "time", SimpleNamespace(perf_counter=fake))
+    return fake
+
+
+def test_without_delay_a_stage_shows_at_once_with_an_eta(capsys, clock):
+    stage = StageReporter().stage("judge", 4)
+    for _ in range(4):
+        clock.now += 2.0
+        stage.update(1, eta_all=30.0)
+    stage.done("PSNR 40 dB")
+    out, err = capsys.readouterr()
+    lines = err.splitlines()
+    assert out == ""
+    assert lines[0] == "[1] judge ..."
+    assert lines[1] == "[1] judge 1/4, 0.50 it/s, ETA 0:06, all stages 0:30"
+    assert lines[-1] == "[1] judge: PSNR 40 dB (8.0 s)"
+
+
+def test_a_delayed_stage_shows_nothing_when_quick(capsys, clock):
+    reporter = StageReporter(delay=2.0)
+    stage = reporter.stage("prepare", None)
+    clock.now += 0.5
+    stage.done("8 views")
+    stage = reporter.stage("judge", 8)
+    for _ in range(8):
+        clock.now += 0.1
+        stage.update(1, eta_all=1.0)
+    stage.done("PSNR 40 dB")
+    assert capsys.readouterr() == ("", "")
+
+
+def test_a_delayed_stage_shows_once_it_runs_long(capsys, clock):
+    stage = StageReporter(delay=2.0).stage("judge", 8)
+    clock.now += 1.0
+    stage.update(1, eta_all=20.0)  # too early: nothing yet
+    assert capsys.readouterr().err == ""
+    clock.now += 1.5
+    stage.update(1, eta_all=15.0)
+    clock.now += 1.0
+    stage.note("a note")
+    stage.done("PSNR 40 dB")
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert err.splitlines() == ["[1] judge ...", "[1] judge 2/8, 0.80 it/s, ETA 0:08, all stages 0:15",
+                                "[1] a note", "[1] judge: PSNR 40 dB (3.5 s)"]
+
+
+def test_a_long_stage_without_steps_still_reports_its_end(capsys, clock):
+    stage = StageReporter(delay=2.0).stage("prepare", None)
+    clock.now += 3.0
+    stage.done("8 views")
+    assert capsys.readouterr() == ("", "[1] prepare: 8 views (3.0 s)\n")
+
+
+def test_on_a_terminal_the_bar_is_on_stderr_with_the_eta_of_everything(monkeypatch):
+    err = io.StringIO()
+    err.isatty = lambda: True
+    out = io.StringIO()
+    monkeypatch.setattr(sys, "stderr", err)
+    monkeypatch.setattr(sys, "stdout", out)
+    stage = StageReporter().stage("judge", 3)
+    for _ in range(3):
+        time.sleep(0.15)  # past tqdm's 0.1 s between refreshes
+        stage.update(1, eta_all=75.0)
+    stage.done("PSNR 40 dB")
+    assert out.getvalue() == ""
+    text = err.getvalue()
+    assert "[1] judge" in text and "ETA all=1:15" in text and "2/3" in text
+    assert text.splitlines()[-1].startswith("[1] judge: PSNR 40 dB (")
+
+
+def _eval(ply, *extra):
+    return main(["eval", str(ply), "--reference", str(ply), "--json", "--views", "2",
+                 "--resolution", "32", "--closeups", "0.5", "--closeup-resolution", "40",
+                 "--device", "cpu", "--no-cache", *extra])
+
+
+def test_eval_progress_goes_to_stderr_and_json_alone_to_stdout(capsys, monkeypatch, ply):
+    monkeypatch.setattr(progress._PrintedStage, "_due", lambda self: True)  # as if slow
+    assert _eval(ply) == 0
+    out, err = capsys.readouterr()
+    doc = json.loads(out)  # nothing but the document
+    assert doc["views"] == 2 and len(doc["closeups"]) == 1
+    lines = err.splitlines()
+    assert lines[0].startswith("[1] prepare: 2 views around the reference (")
+    assert any(line.startswith("[2] judge the sampled framing, 2 views of 32x32 1/2, ") and
+               "ETA" in line and "all stages" in line for line in lines)
+    assert any(line.startswith("[3] judge close-ups at 0.5 of the distance, 2 views of 40x40: "
+                               "PSNR ") for line in lines)
+
+
+def test_eval_quiet_and_quick_print_no_progress(capsys, monkeypatch, ply):
+    import spcodec.imaging.render  # noqa: F401  (torch's import is no stage of this test)
+
+    assert _eval(ply) == 0  # every stage under the 2 s delay
+    out, err = capsys.readouterr()
+    assert json.loads(out)["views"] == 2 and err == ""
+    monkeypatch.setattr(progress._PrintedStage, "_due", lambda self: True)
+    assert _eval(ply, "--quiet") == 0
+    out, err = capsys.readouterr()
+    assert json.loads(out)["views"] == 2 and err == ""

@@ -125,6 +125,7 @@ def test_a_training_step_renders_only_the_prefix_it_draws(scene):
     assert any(not torch.equal(old[:50], new[:50]) for old, new in zip(before, after))
 
 
+@pytest.mark.training
 def test_a_nested_encode_stores_the_layers_fixed_before_training(scene):
     from spcodec.encoder.patch import split_layers
 
@@ -141,6 +142,7 @@ def test_a_nested_encode_stores_the_layers_fixed_before_training(scene):
     assert len(spcodec.decode(result.data)) == len(result.source_index)
 
 
+@pytest.mark.training
 def test_a_plain_retrained_encode_records_what_each_of_its_prefixes_shows(scene):
     """Not only nested files: every retrained file of several layers says, per prefix, what it
     scored on the training views, for a viewer choosing where to stop on a slow link."""
@@ -160,6 +162,7 @@ def test_a_plain_retrained_encode_records_what_each_of_its_prefixes_shows(scene)
     assert spcodec.inspect(result.data).to_json()["metadata"]["stats"]["prefix_psnr"] == prefix
 
 
+@pytest.mark.training
 def test_rate_control_drops_from_the_last_layer_first(scene):
     config = EncoderConfig(seed=3, retrain=QUICK, max_sketch_share=None)
     free = encode(scene, config)

@@ -63,6 +63,7 @@ def _closeup_psnr(data: bytes, scene) -> float:
     return report.framing(0.5).psnr
 
 
+@pytest.mark.slow
 def test_without_retraining_the_file_is_the_smallest_that_reaches_the_target(scene):
     full = encode(scene, EncoderConfig(seed=3))
     target = _closeup_psnr(full.data, scene) - 4.0
@@ -79,6 +80,7 @@ def test_without_retraining_the_file_is_the_smallest_that_reaches_the_target(sce
         1, COUNT_TOLERANCE * aim["patch_gaussians"])
 
 
+@pytest.mark.training
 def test_retrained_files_reach_the_target_with_fewer_gaussians(scene):
     quick = RetrainConfig(iterations=60, finish_iterations=16, views=8, resolution=64,
                           importance_views=8, close_views=4, close_resolution=128, close_crop=48)

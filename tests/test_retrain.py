@@ -72,6 +72,7 @@ def retrain_config(share: float | None = None, **changes) -> EncoderConfig:
 
 
 # ------------------------------------------------------------------------------- quality
+@pytest.mark.training
 def test_retraining_beats_the_no_retrain_encode_at_equal_size(scene):
     retrained = encode(scene, retrain_config(iterations=150))
     size = len(retrained.data)
@@ -85,6 +86,7 @@ def test_retraining_beats_the_no_retrain_encode_at_equal_size(scene):
     assert stats["psnr_retrained"] > stats["psnr_before"] + 1.0
 
 
+@pytest.mark.training
 def test_a_retrained_patch_stores_positions_on_the_coarser_retrained_grid(scene):
     """Retraining settles 12 bits over the (outlier-free) scene, records them in the metadata and
     writes every patch layer on that grid; a precision the caller gives is kept."""
@@ -115,6 +117,7 @@ def test_a_retrained_patch_stores_positions_on_the_coarser_retrained_grid(scene)
         "position_bits"] == DEFAULT_POSITION_BITS
 
 
+@pytest.mark.training
 def test_snapping_trains_what_the_file_stores_and_only_when_quantizing_costs(scene):
     """Training through the codebooks: what the last training step rendered is what the file
     stores (quantizing afterwards costs nothing more), where quantizing once after free training
@@ -137,6 +140,7 @@ def test_snapping_trains_what_the_file_stores_and_only_when_quantizing_costs(sce
         "loss_db": snapped["snap"]["loss_db"], "snapped": False}
 
 
+@pytest.mark.training
 def test_the_finish_moves_codebooks_and_reports_its_gain(scene):
     result = encode(scene, retrain_config())
     stats = result.stats["retrain"]
@@ -148,6 +152,7 @@ def test_the_finish_moves_codebooks_and_reports_its_gain(scene):
 
 
 # -------------------------------------------------------------------------- frozen sketch
+@pytest.mark.training
 def test_the_frozen_sketch_is_bit_identical_before_and_after_retraining(scene):
     config = retrain_config()
     result = encode(scene, config)
@@ -161,6 +166,7 @@ def test_the_frozen_sketch_is_bit_identical_before_and_after_retraining(scene):
     assert writer.decoded_sketch().equals(sketch_after)
 
 
+@pytest.mark.training
 def test_the_sketch_layer_of_a_retrained_file_is_capped_before_training(scene):
     """The pruned patch is a fraction of the no-retrain one, so the sketch would be most of a
     retrained file: clusters go to the patch, judged on the pruned file before training."""
@@ -196,6 +202,7 @@ def test_training_never_changes_the_frozen_tensors(scene):
 
 
 # --------------------------------------------------------------------- checkpoint, resume
+@pytest.mark.training
 @pytest.mark.parametrize("stop_stage, stop_at, target, snap, nested", [
     ("retrain", 5, None, 0.0, False), ("retrain", 23, None, 0.0, False),
     ("finish", 5, None, 0.0, False),
@@ -227,6 +234,7 @@ def test_interrupt_and_resume_give_the_same_bytes(tmp_path, scene, stop_stage, s
     assert not control.checkpoint.exists()  # removed once the encode completes
 
 
+@pytest.mark.training
 def test_progress_estimates_up_front_resumes_where_it_stopped_and_times_every_stage(
         tmp_path, scene, capsys):
     """The default encode is a training job: one line says how long before it starts; a
@@ -270,6 +278,7 @@ def test_resume_refuses_other_settings_and_a_fresh_run_keeps_the_checkpoint(tmp_
     assert ckpt.read_bytes() == saved
 
 
+@pytest.mark.training
 def test_ctrl_c_leaves_a_checkpoint_no_output_and_one_line(tmp_path, scene):
     ply, out = tmp_path / "in.ply", tmp_path / "out.spc"
     spcodec.write_ply(ply, scene)
@@ -302,10 +311,12 @@ def _target_size_lands(cloud, target: int, **changes) -> None:
     assert rate["target_bytes"] == target and rate["predicted_bytes"] > 0
 
 
+@pytest.mark.training
 def test_target_size_is_a_budget_the_file_fills_synthetic(scene):
     _target_size_lands(scene, 15_000)
 
 
+@pytest.mark.training
 def test_the_prefix_table_in_the_metadata_fits_inside_the_target(scene, monkeypatch):
     """The per-prefix PSNR table is scored after the fit and goes into the metadata: its bytes
     count too (kacytran at SPZ/16 came out 23 bytes over, docs/RESULTS.md 13.20). A long table
@@ -330,12 +341,14 @@ def test_the_prefix_table_in_the_metadata_fits_inside_the_target(scene, monkeypa
     assert spcodec.inspect(result.data).metadata["stats"]["prefix_psnr"] == table(kept)
 
 
+@pytest.mark.training
 @pytest.mark.slow
 def test_target_size_is_a_budget_the_file_fills_on_a_real_scene():
     cloud = spcodec.read_ply(real_file("kacytran_try_sh3/point_cloud_iteration_7000.ply"))
     _target_size_lands(cloud, 60_000, iterations=20, finish_iterations=8)
 
 
+@pytest.mark.training
 @pytest.mark.slow
 def test_codebooks_that_shrink_with_the_patch_land_on_target_and_leave_room_for_gaussians():
     """kacytran (SH 3) at a quarter of SPZ's bytes: with 256 entries per codebook, codebooks
@@ -362,6 +375,7 @@ def test_codebooks_that_shrink_with_the_patch_land_on_target_and_leave_room_for_
             assert len(cb.entries) == codebook_entries(planned, 0, cb.groups), cb.attribute
 
 
+@pytest.mark.training
 def test_target_size_too_small_is_refused_with_no_output(tmp_path, scene, capsys):
     ply, out = tmp_path / "in.ply", tmp_path / "out.spc"
     spcodec.write_ply(ply, scene)
@@ -373,6 +387,7 @@ def test_target_size_too_small_is_refused_with_no_output(tmp_path, scene, capsys
 
 
 # ------------------------------------------------------------------------ reported quality
+@pytest.mark.training
 def test_eval_reproduces_the_psnr_the_encoder_reported(tmp_path, scene, capsys):
     ply, out, stats = tmp_path / "in.ply", tmp_path / "out.spc", tmp_path / "stats.json"
     spcodec.write_ply(ply, scene)
@@ -426,6 +441,7 @@ def test_the_low_pass_follows_the_targets_unless_told(tmp_path, scene):
     assert (low_pass(None, 0.2), low_pass(data, 0.2)) == (0.2, 0.2)
 
 
+@pytest.mark.training
 def test_a_checkpoint_resumes_with_another_worker_count(tmp_path, scene):
     """``n_jobs`` says how refinement runs, not what it makes: an encode stopped with one worker
     resumes with two (another machine, say) and writes the bytes of an uninterrupted run, whose

@@ -407,6 +407,7 @@ CONFORMANCE_COMMAND = ["conformance", "--decoder", "node web/bin/spc-decode.mjs 
                        "--max-layer-arg", "--max-layer {k}"]
 
 
+@pytest.mark.slow
 def test_js_decoder_passes_the_conformance_suite():
     """`spcodec conformance --decoder 'node web/bin/spc-decode.mjs {input} {output}'
     --max-layer-arg '--max-layer {k}'`, exactly: every vector, every max_layer, must pass."""

@@ -28,6 +28,79 @@
 
 import { streamLayers } from '../src/stream.js';
 
+// PlayCanvas comes in as an argument (`pc`), not as an import: the types below say what these
+// loaders use of its objects, so that they check without PlayCanvas installed and any PlayCanvas 2
+// app fits them.
+
+/**
+ * What the loaders use of a PlayCanvas `GraphNode`.
+ * @typedef {{enabled: boolean, destroy(): void}} PcNode
+ */
+
+/**
+ * What the loaders use of a PlayCanvas `Entity`.
+ * @typedef {PcNode & {
+ *   addChild(node: PcNode): void,
+ *   setLocalRotation(rotation: unknown): void,
+ *   addComponent(type: string, data?: object): unknown,
+ *   gsplat?: {resource?: {destroy(): void} | null},
+ * }} PcEntity
+ */
+
+/**
+ * What the loaders use of PlayCanvas's event handlers (an `AppBase`, a component system).
+ * @typedef {{
+ *   on(name: string, callback: (...args: any[]) => void): unknown,
+ *   off(name: string, callback?: (...args: any[]) => void): unknown,
+ * }} PcEvents
+ */
+
+/**
+ * What the loaders use of a PlayCanvas application (`pc.AppBase`).
+ * @typedef {PcEvents & {
+ *   root: PcEntity,
+ *   graphicsDevice: unknown,
+ *   systems?: {gsplat?: PcEvents},
+ *   loader: {getHandler(type: string): {addParser(parser: SpcParser): void} | undefined},
+ * }} PcApp
+ */
+
+/**
+ * A GSplatResource as the loaders make it; SpcParser adds `spcRotation`.
+ * @typedef {{destroy(): void, spcRotation?: number[]}} PcGSplatResource
+ */
+
+/**
+ * What the loaders use of the PlayCanvas module (`import * as pc from 'playcanvas'`).
+ * GSplatResource's arguments are PlayCanvas's own: `app.graphicsDevice` and a `pc.GSplatData`.
+ * @typedef {{
+ *   Entity: new (name?: string) => PcEntity,
+ *   Quat: new (...xyzw: number[]) => unknown,
+ *   GSplatData: new (elements: {name: string, count: number, properties: {type: string,
+ *     name: string, storage: Float32Array, byteSize: number}[]}[]) => unknown,
+ *   GSplatResource: new (device: any, data: any) => PcGSplatResource,
+ * }} PcModule
+ */
+
+/** The `spcodec info --json` document of a file (the decoder's `inspect`).
+ * @typedef {ReturnType<typeof import('../src/decoder.js').inspect>} SpcInfo */
+
+/** A range request and its answer (offsets in the file, `contentRange` as the server said).
+ * @typedef {{first: number, last: number, status: number,
+ *   contentRange: {first: number, last: number, size: number}|null}} SpcRequest */
+
+/** A streamed layer and its entity (an `E`, the app's `pc.Entity`; null for an empty layer);
+ * `shown`: false while it waits behind the preview.
+ * @template E
+ * @typedef {import('../src/stream.js').StreamedLayer & {entity: E|null, shown: boolean}}
+ *   SpcLayerEntity */
+
+/** The file's preview and its entity (an `E`; null for an empty preview); `showFrom`: the layer
+ * whose arrival drops it.
+ * @template E
+ * @typedef {import('../src/stream.js').StreamedPreview & {entity: E|null, showFrom: number}}
+ *   SpcPreviewEntity */
+
 /**
  * The PLY-named property arrays of a decoded cloud (the decoder API's layout: positions xyz,
  * log-scales, rotations wxyz, opacity logits, SH DC, SH rest per Gaussian coefficient-major then
@@ -71,12 +144,16 @@ function deinterleave(source, n, targets) {
  * Morton curve for memory locality; our layers need no such pass: the encoder stores each patch
  * layer in Morton order (its positions are delta-coded along that curve) and the sketch cluster
  * by cluster. Drawing order is the renderer's depth sort either way.
- * @param {typeof import('playcanvas')} pc
+ * @template {PcModule} M
+ * @param {M} pc
+ * @param {import('../src/decoder.js').Cloud} cloud
+ * @returns {InstanceType<M['GSplatData']>}
  */
 export function toGSplatData(pc, cloud) {
   const properties = [...plyProperties(cloud)].map(([name, storage]) =>
     ({ type: 'float', name, storage, byteSize: 4 }));
-  return new pc.GSplatData([{ name: 'vertex', count: cloud.count, properties }]);
+  return /** @type {InstanceType<M['GSplatData']>} */ (
+    new pc.GSplatData([{ name: 'vertex', count: cloud.count, properties }]));
 }
 
 /**
@@ -112,34 +189,35 @@ export function concatClouds(clouds) {
  * destroyed in the same step, so the next frame drawn holds the scene ([R-104]). A preview that
  * does not decode is reported to `onPreviewError` and the layers show as without one.
  *
- * @param {any} app  the PlayCanvas application
- * @param {any} pc   the PlayCanvas module the app runs on
+ * @template {PcModule} M
+ * @param {PcApp} app  the PlayCanvas application
+ * @param {M} pc   the PlayCanvas module the app runs on (its `Entity` class makes the entities)
  * @param {string} url  an .spc, or a .glb written by `spcodec embed`
  * @param {object} [options]
- * @param {any} [options.parent]  where the scene's entity goes (default: app.root)
+ * @param {PcEntity} [options.parent]  where the scene's entity goes (default: app.root)
  * @param {number} [options.maxLayer]  stop after this layer
  * @param {string} [options.up]  the up axis where the file does not store one (default -y)
- * @param {(layer: object) => void} [options.onLayer]  after each layer's entity is added; `shown`
- *   is false for a layer held back behind the preview
+ * @param {(layer: SpcLayerEntity<InstanceType<M['Entity']>>) => void} [options.onLayer]  after
+ *   each layer's entity is added; `shown` is false for a layer held back behind the preview
  * @param {(loaded: number, total: number|null) => void} [options.onProgress]
- * @param {(info: object) => void} [options.onInfo]  the `spcodec info --json` document, first
+ * @param {(info: SpcInfo) => void} [options.onInfo]  the `spcodec info --json` document, first
  * @param {typeof fetch} [options.fetchImpl]
- * @param {(event: object) => void} [options.onRequest]
+ * @param {(event: SpcRequest) => void} [options.onRequest]  each range request and its answer
  * @param {boolean} [options.preview]  show the file's preview (default true)
- * @param {(preview: object) => void} [options.onPreview]  after the preview's entity is added,
- *   with `showFrom`: the layer whose arrival drops it
+ * @param {(preview: SpcPreviewEntity<InstanceType<M['Entity']>>) => void} [options.onPreview]
+ *   after the preview's entity is added, with `showFrom`: the layer whose arrival drops it
  * @param {(drop: {layer: number, held: number[]}) => void} [options.onPreviewDropped]  the
  *   preview is gone and layers 0..layer are enabled (`held`: those that waited), before that
  *   layer's onLayer
  * @param {(error: unknown) => void} [options.onPreviewError]
- * @returns {Promise<{entity: any, info: object|null, layers: number, bytes: number,
- *   mode: string, fileSize: number|null, previewError: unknown}>}
+ * @returns {Promise<{entity: InstanceType<M['Entity']>, info: SpcInfo|null, layers: number,
+ *   bytes: number, mode: string, fileSize: number|null, previewError: unknown}>}
  */
 export async function loadSpc(app, pc, url, { parent = app.root, maxLayer = Infinity, up = null,
   onLayer = () => {}, onProgress = () => {}, onInfo = () => {}, fetchImpl = fetch,
   onRequest = () => {}, preview = true, onPreview = () => {}, onPreviewDropped = () => {},
   onPreviewError = () => {} } = {}) {
-  const entity = new pc.Entity(`spc ${url}`);
+  const entity = /** @type {InstanceType<M['Entity']>} */ (new pc.Entity(`spc ${url}`));
   parent.addChild(entity);
   const stand = new PreviewStand();
   const result = await streamLayers(url, {
@@ -169,13 +247,15 @@ export async function loadSpc(app, pc, url, { parent = app.root, maxLayer = Infi
 
 /**
  * An entity drawing `cloud` with a GSplat component of its own.
- * @param {any} app
- * @param {any} pc
+ * @template {PcModule} M
+ * @param {PcApp} app
+ * @param {M} pc
  * @param {string} name
  * @param {import('../src/decoder.js').Cloud} cloud
+ * @returns {InstanceType<M['Entity']>}
  */
 function gsplatEntity(app, pc, name, cloud) {
-  const child = new pc.Entity(name);
+  const child = /** @type {InstanceType<M['Entity']>} */ (new pc.Entity(name));
   child.addComponent('gsplat', {
     resource: new pc.GSplatResource(app.graphicsDevice, toGSplatData(pc, cloud)) });
   return child;
@@ -187,8 +267,8 @@ function gsplatEntity(app, pc, name, cloud) {
  * state still drawn (until the new one is sorted) holds it: a blank frame (PlayCanvas 2.23; the
  * viewer's browser test sees it). The resource is not the component's to free: it is freed here
  * (PlayCanvas defers that while a state still counts it).
- * @param {any} app
- * @param {any} entity  null: nothing to do
+ * @param {PcApp} app
+ * @param {PcEntity|null} entity  null: nothing to do
  */
 function destroyOnceReplaced(app, entity) {
   const system = app.systems?.gsplat;
@@ -222,23 +302,24 @@ function destroyOnceReplaced(app, entity) {
  */
 export class PreviewStand {
   constructor() {
-    /** @type {any} the preview's entity (null for an empty preview) */
+    /** @type {PcEntity|null} the preview's entity (null for an empty preview) */
     this.entity = null;
     /** the layer whose arrival drops the preview; -1: no preview (any more) */
     this.showFrom = -1;
-    /** @type {{index: number, entity: any}[]} layers waiting behind the preview */
+    /** @type {{index: number, entity: PcEntity|null}[]} layers waiting behind the preview */
     this.held = [];
     /** @type {number[]} the layers that waited, once the preview is dropped */
     this.heldIndices = [];
     /** the layer at which the preview was dropped, or -1 */
     this.dropped = -1;
-    /** @type {any} the preview's entity once dropped (disabled), until the caller destroys it */
+    /** @type {PcEntity|null} the preview's entity once dropped (disabled), until the caller
+     * destroys it */
     this.retired = null;
   }
 
   /**
    * Show the preview until layer `takeover`, or `last` (the last layer that will come) if sooner.
-   * @param {any} entity
+   * @param {PcEntity|null} entity
    * @param {number} takeover
    * @param {number} last
    * @returns {number} the layer that will drop it
@@ -252,7 +333,7 @@ export class PreviewStand {
   /**
    * A layer's entity has arrived (null for an empty layer): hold it back behind the preview, or
    * swap the preview for it and the layers held. Returns whether the layer is on screen now.
-   * @param {any} entity
+   * @param {PcEntity|null} entity
    * @param {number} index
    */
   place(entity, index) {
@@ -282,8 +363,8 @@ export class PreviewStand {
  */
 export class SpcParser {
   /**
-   * @param {any} app
-   * @param {any} pc
+   * @param {PcApp} app
+   * @param {PcModule} pc
    * @param {{up?: string, fetchImpl?: typeof fetch}} [options]
    */
   constructor(app, pc, { up = null, fetchImpl = null } = {}) {
@@ -300,8 +381,9 @@ export class SpcParser {
 
   /**
    * @param {string|{load: string}} url
-   * @param {(error: any, resource?: any) => void} callback
-   * @param {any} asset
+   * @param {(error: any, resource?: PcGSplatResource) => void} callback  PlayCanvas's
+   *   ResourceHandlerCallback; the error is the decoder's or the transfer's
+   * @param {{fire(name: string, ...args: unknown[]): unknown}} [asset]  the asset loading it
    */
   async load(url, callback, asset) {
     const clouds = [];
@@ -331,8 +413,8 @@ export class SpcParser {
 
 /**
  * Let `app` load .spc files as gsplat assets (adds an {@link SpcParser} to its gsplat handler).
- * @param {any} app
- * @param {any} pc
+ * @param {PcApp} app
+ * @param {PcModule} pc
  * @param {{up?: string, fetchImpl?: typeof fetch}} [options]
  * @returns {SpcParser}
  */

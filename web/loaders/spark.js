@@ -18,26 +18,53 @@
 import { plyBytes } from '../src/ply.js';
 import { streamLayers } from '../src/stream.js';
 
+// three.js and Spark come in as arguments, not as imports: the types below say what the loader
+// uses of them, so that they check without either installed.
+
+/**
+ * What the loader uses of a three.js Object3D (`parent`, and the group it makes).
+ * @typedef {{add(...objects: unknown[]): unknown}} ThreeParent
+ */
+
+/**
+ * What the loader uses of the three.js module: its Group class.
+ * @typedef {{Group: new () => ThreeParent & {name: string,
+ *   quaternion: {set(...xyzw: number[]): unknown}}}} ThreeModule
+ */
+
+/**
+ * What the loader uses of Spark's SplatMesh class (`fileType` is 'ply', Spark's
+ * SplatFileType.PLY).
+ * @typedef {new (options: {fileBytes: Uint8Array, fileType: any, fileName: string}) =>
+ *   {name?: string, initialized: Promise<unknown>}} SplatMeshClass
+ */
+
 /**
  * Stream `url` into a THREE.Group of SplatMeshes, one per layer as it arrives.
  *
+ * @template {ThreeModule} T
+ * @template {SplatMeshClass} S
  * @param {string} url  an .spc, or a .glb written by `spcodec embed`
  * @param {object} options
- * @param {any} options.THREE  the three.js module
- * @param {any} options.SplatMesh  Spark's SplatMesh class
- * @param {any} [options.parent]  an Object3D the group is added to at once (default: none)
+ * @param {T} options.THREE  the three.js module
+ * @param {S} options.SplatMesh  Spark's SplatMesh class
+ * @param {ThreeParent|null} [options.parent]  an Object3D the group is added to at once (default:
+ *   none)
  * @param {number} [options.maxLayer]  stop after this layer
  * @param {string} [options.up]  the up axis where the file does not store one (default -y)
- * @param {(layer: object) => void} [options.onLayer]  once each layer's mesh is ready
+ * @param {(layer: import('../src/stream.js').StreamedLayer & {mesh: InstanceType<S>|null}) => void}
+ *   [options.onLayer]  once each layer's mesh is ready (`mesh`: null for an empty layer)
  * @param {(loaded: number, total: number|null) => void} [options.onProgress]
  * @param {typeof fetch} [options.fetchImpl]
- * @returns {Promise<{group: any, meshes: any[], info: object|null, layers: number,
+ * @returns {Promise<{group: InstanceType<T['Group']>, meshes: InstanceType<S>[],
+ *   info: ReturnType<typeof import('../src/decoder.js').inspect>|null, layers: number,
  *   bytes: number}>}
  */
 export async function loadSpc(url, { THREE, SplatMesh, parent = null, maxLayer = Infinity,
-  up = null, onLayer = () => {}, onProgress = () => {}, fetchImpl = fetch } = {}) {
+  up = null, onLayer = () => {}, onProgress = () => {}, fetchImpl = fetch,
+} = /** @type {any} */ ({})) {  // {}: THREE and SplatMesh are required, the check below says so
   if (!THREE || !SplatMesh) throw new Error('loadSpc needs { THREE, SplatMesh } (three and @sparkjsdev/spark)');
-  const group = new THREE.Group();
+  const group = /** @type {InstanceType<T['Group']>} */ (new THREE.Group());
   group.name = `spc ${url}`;
   parent?.add(group);
   const meshes = [];
@@ -50,8 +77,8 @@ export async function loadSpc(url, { THREE, SplatMesh, parent = null, maxLayer =
         onLayer({ ...layer, mesh: null });
         return;
       }
-      const mesh = new SplatMesh({ fileBytes: plyBytes(layer.cloud), fileType: 'ply',
-        fileName: `layer-${layer.index}.ply` });
+      const mesh = /** @type {InstanceType<S>} */ (new SplatMesh({ fileBytes: plyBytes(layer.cloud),
+        fileType: 'ply', fileName: `layer-${layer.index}.ply` }));
       mesh.name = `layer ${layer.index}`;
       meshes.push(mesh);
       group.add(mesh);

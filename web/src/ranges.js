@@ -52,6 +52,9 @@ export function parseContentRange(header) {
  * @param {number} [options.maxLayer]  last layer to fetch (default: all)
  * @param {typeof fetch} [options.fetchImpl]
  * @param {(event: object) => void} [options.onRequest]  told of each request and its answer
+ * @param {number} [options.base]  the byte of the file at `url` where the .spc starts (one inside
+ *   a .glb; default 0): `planLayers` and `sink` see the .spc's bytes, `onRequest` the file's offsets
+ * @param {number|null} [options.length]  the .spc's length from `base` (default: to the file's end)
  * @returns {Promise<{mode: 'ranges'|'stream', fileSize: number|null, bytes: number}>}
  */
 export async function streamSpc(url, { sink, planLayers, maxLayer = Infinity, fetchImpl = fetch,
@@ -129,7 +132,8 @@ async function request(fetchImpl, url, first, last, onRequest, base = 0) {
  * streamSpc does and the glTF node's `rotation` (x, y, z, w; null for a plain .spc, whose up axis
  * is in its metadata).
  * @param {string} url
- * @param {Parameters<typeof streamSpc>[1]} options
+ * @param {Parameters<typeof streamSpc>[1] &
+ *   {onGlb?: (where: ReturnType<typeof locateSpc>) => void}} options
  */
 export async function streamScene(url, options) {
   const path = new URL(url, 'http://x/').pathname.toLowerCase();

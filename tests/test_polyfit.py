@@ -274,8 +274,10 @@ def test_sh_rest_model_is_optional_and_reduces_its_error():
     constant = fit_cluster(pos, targets, RefineConfig(sh_rest_degree=0, min_degree=1))
     assert constant.degrees[A.SH_REST] == 0 and min(constant.degrees.values()) == 0
     assert all(constant.degrees[a] >= 1 for a in FOUR)
-    # SH rest is not part of MSE_combined: the four combined errors are unchanged by it.
-    assert with_rest.mse_combined == pytest.approx(without.mse_combined, rel=1e-9, abs=1e-15)
+    # SH rest is not part of MSE_combined: the four combined errors are unchanged by it (up to
+    # the summation order of the least-squares solves, which moved them by 1.2e-9 relative with
+    # this machine's numpy; a model that leaked SH rest into them would move them by percents)
+    assert with_rest.mse_combined == pytest.approx(without.mse_combined, rel=1e-6, abs=1e-15)
 
 
 @st.composite

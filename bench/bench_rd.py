@@ -26,6 +26,9 @@ Methods (the paper's section "Comparison Methods"):
   line runs through the ``spz4`` point, so the default shares leave the quarter out;
 * ``pr-target``: Prune&Retrain aimed at each ``--pr-fractions`` of SPZ's bytes (the quarter
   included), the same size control as ``sp-target``: the two curves compare at equal bytes.
+* ``nr-target``: no retraining, aimed at each ``--nr-fractions`` of SPZ's bytes: below the
+  preset's file the least important are dropped, above it every Gaussian stays and the
+  precision search (encoder/allocation.py) buys precision: the no-retrain curve a user walks;
 * ``spu-target``, ``sps-target``: S&P++ with the patch pruned uniformly (``--prune uniform``)
   or sampled in proportion to blend weight (``--prune sampled``) at the ``--pr-fractions``: the
   sketch of ``sp-target`` with the pruning rule of ``pr-target`` or one between the two, which
@@ -43,6 +46,7 @@ for the plots only (install by hand).
         [--methods sp pr noretrain spz sog spz4 sp-target pr-target spu-target sps-target]
         [--factors 2 4 8 16]
         [--spz-fractions 0.0625 0.125 0.5] [--pr-fractions 0.0625 0.125 0.25 0.5]
+        [--nr-fractions 0.125 0.25 0.5 0.6 0.75 0.9]
         [--iterations 3000] [--encoded DIR]
         [--lego-model /path/lego.ply --lego-downscale 4] [--no-viewer]
     python bench/bench_rd.py --json rd.json --plot docs/results
@@ -69,8 +73,8 @@ from scenes import data_dir
 
 LEGO_DATASET = "nerf_synthetic_lego"
 METHODS = ("sp", "pr", "noretrain", "spz", "sog", "spz4", "sp-target", "pr-target", "spu-target",
-           "sps-target")
-SIZED = ("spz4", "sp-target", "pr-target", "spu-target", "sps-target")
+           "sps-target", "nr-target")
+SIZED = ("spz4", "sp-target", "pr-target", "spu-target", "sps-target", "nr-target")
 """Methods aimed at a share of SPZ's bytes: they need the scene's ``spz`` row first."""
 PRUNE_RULE = {"pr": "uniform", "pr-target": "uniform", "spu-target": "uniform",
               "sps-target": "sampled"}
@@ -81,6 +85,7 @@ LABELS = {"sp": "S&P++ (retrained)", "pr": "Prune&Retrain", "noretrain": "no-ret
           "spz": "SPZ", "sog": "SOG", "spz4": "S&P++ at SPZ/4", "original": "original",
           # rows added by hand from single encodes (docs/RESULTS.md says which)
           "sp-highrate": "S&P++, highrate codebooks", "sp-target": "S&P++ --target-size",
+          "nr-target": "no-retrain --target-size",
           "pr-target": "Prune&Retrain --target-size",
           "spu-target": "S&P++ --target-size --prune uniform",
           "sps-target": "S&P++ --target-size --prune sampled",
@@ -155,6 +160,9 @@ def encode_args(method: str, param, setup: dict, args) -> list[str]:
     view = [f"--up={setup['up']}"] + (["--antialiased"] if setup["antialiased"] else [])
     if method == "noretrain":
         return ["--no-retrain", "--preset", param, *view]
+    if method == "nr-target":
+        return ["--no-retrain", "--target-size", str(param), "--threads", str(args.threads),
+                *view]
     size = ["--target-size", str(param)] if method in SIZED else \
         ["--patch-downsample", str(param)]
     common = [*size, "--iterations", str(args.iterations), "--threads", str(args.threads),
@@ -222,7 +230,7 @@ def sweep(args) -> None:
                   "noretrain": ["lowrate", "balanced", "highrate", "transparent"],
                   "spz": ["-"], "sog": ["-"], "spz4": ["-"], "sp-target": args.spz_fractions,
                   "pr-target": args.pr_fractions, "spu-target": args.pr_fractions,
-                  "sps-target": args.pr_fractions}
+                  "sps-target": args.pr_fractions, "nr-target": args.nr_fractions}
         for method in args.methods:
             for param in points[method]:
                 if (name, method, str(param)) in done:
@@ -296,7 +304,7 @@ def plot(args) -> None:
               "spz": ("*", "C3"), "sog": ("X", "C5"), "spz4": ("P", "C4"), "original": ("D", "k"),
               "sp-target": ("o-", "C6"), "sp-target-uncapped": ("x:", "C7"),
               "pr-target": ("s--", "C1"), "spu-target": ("v-.", "m"),
-              "sps-target": ("<-.", "y"),
+              "sps-target": ("<-.", "y"), "nr-target": ("^-", "C2"),
               "nosketch-target": ("D", "C9"),
               "spz4-uncapped": ("x", "C4"), "spz4-p12": ("P", "C8")}
     for name in dict.fromkeys(r["scene"] for r in rows):
@@ -340,6 +348,9 @@ def main() -> None:
                     help="sp-target: the shares of SPZ's bytes to aim at (a quarter is spz4's)")
     ap.add_argument("--pr-fractions", nargs="+", type=float, default=[1 / 16, 1 / 8, 1 / 4, 1 / 2],
                     help="pr-target, spu-target and sps-target: the shares of SPZ's bytes to aim at")
+    ap.add_argument("--nr-fractions", nargs="+", type=float,
+                    default=[1 / 8, 1 / 4, 0.5, 0.6, 0.75, 0.9],
+                    help="shares of SPZ's bytes the nr-target points aim at")
     ap.add_argument("--encoded", type=Path, help="judge DIR/SCENE-METHOD-POINT.spc (with its "
                     ".stats.json) where it exists rather than encoding that point")
     ap.add_argument("--iterations", type=int, default=3000)

@@ -374,6 +374,9 @@ class PatchConfig:
         "SCALE": 1, "ROTATION": 2, "OPACITY": 1, "COLOR_DC": 3,
         "SH_BAND_1": 9, "SH_BAND_2": 15, "SH_BAND_3": 21,
     })
+    #: Entries per codebook for some attributes (by name), at most ``codebook_size`` and the
+    #: rule above; the rate-distortion search (encoder/allocation.py) sets them. None: none.
+    entry_counts: dict[str, int] | None = None
     #: How positions are stored: "draco" (order-preserving Draco, the smallest), "quant16" (16-bit
     #: fixed point, delta-coded), "float16" (the paper's) or "float32" (lossless).
     position_mode: str = "draco"
@@ -415,6 +418,29 @@ class PatchConfig:
     def stored_position_bits(self) -> int:
         """The position precision written: ``position_bits``, or its default when unset."""
         return DEFAULT_POSITION_BITS if self.position_bits is None else self.position_bits
+
+
+@dataclass
+class AllocationConfig:
+    """How the rate-distortion search of the patch's precision measures its options
+    (encoder/allocation.py; recorded in the file's metadata). It runs for a no-retrain
+    ``target_size`` that the preset's own file does not already fill (encoder/sizing.py)."""
+
+    #: Patch Gaussians the options are measured on (a uniform sample, seeded).
+    sample: int = 16_384
+    #: Entry counts tried for every entry dimension (the format allows 1..256).
+    entry_counts: tuple[int, ...] = (256, 128, 64, 32, 16)
+    #: Training views (never eval's) the sensitivity is taken at, at the sampled framing and
+    #: at half its distance, and their side in pixels.
+    views: int = 4
+    resolution: int = 256
+    #: Random projections per view for the sensitivity.
+    probes: int = 1
+    #: Weight of the close framing's MSE against the sampled framing's in the distortion.
+    close_weight: float = 1.0
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
 
 
 @dataclass
@@ -569,6 +595,13 @@ class EncoderConfig:
     #: Retrained encodes (``preset_config(..., retrain=True)``) use
     #: :data:`RETRAINED_MAX_SKETCH_SHARE` instead.
     max_sketch_share: float | None = 0.1
+    #: The rate-distortion search of the patch's precision (codebook shape and size per
+    #: attribute) for a no-retrain ``target_size``: every Gaussian kept wherever some precision
+    #: fits them all (None: off, the preset's precision and pruning).
+    allocation: AllocationConfig | None = None
+    #: Never drop a Gaussian (``--preset transparent``): a target size it cannot meet with every
+    #: Gaussian kept is refused, naming the size it needs, rather than met by pruning.
+    keep_all: bool = False
 
     def seeded(self) -> "EncoderConfig":
         """A copy whose stage configs carry ``seed``."""

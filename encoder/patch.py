@@ -322,6 +322,8 @@ class PatchEncoder:
                 entries = np.zeros((1, dim), np.float16)
             else:
                 size = codebook_entries(cfg, len(cloud), attr.width // dim)
+                if cfg.entry_counts and attr.name in cfg.entry_counts:
+                    size = max(1, min(size, cfg.entry_counts[attr.name]))
                 entries = train_codebook(values[attr], dim, size, weights, cfg, seeds[attr])
             return Codebook(attr, entries), assign_attribute(attr, values[attr], entries)
 

@@ -30,6 +30,7 @@ from .patch import PatchEncoder, PatchEncoding, retrained_position_bits
 from .prune_retrain import encode_pruned_patch, factor_trial, prepare_targets, scene_weights
 from .refine import RefineResult, refine
 from .retrain import RunControl
+from .sizing import sizing_for
 from .sketch import SketchEncoder
 from .stages import ProgressFactory, SceneWriter, SketchOutcome, silent
 
@@ -136,9 +137,19 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
             lambda part, part_writer: factor_trial(part, cloud.subset(part.patch_idx),
                                                    part_writer, config, weights),
             progress, times, file_size=config.target_size)
+        sizing = sizing_for(config, cloud, control.device)
         choice = encode_pruned_patch(cloud, sketch, cloud.subset(sketch.patch_idx), writer,
-                                     config, prepared, weights, dataset, control, progress,
-                                     times)
+                                     config, prepared, weights, dataset, control, sizing,
+                                     progress, times)
+        if sketch.clusters and sizing.drops_sketch(cloud, sketch, writer, choice.encoding):
+            # the sketch's models cost more picture than their bytes buy as precision
+            sketch = encode_sketch(cloud, None, found, config, progress, times)
+            sketch.stats["dropped_for_precision"] = True
+            writer = dataclasses.replace(writer, sketch=[])
+            again = sizing_for(config, cloud, control.device)
+            again.inherit(sizing)
+            choice = encode_pruned_patch(cloud, sketch, cloud, writer, config, prepared, weights,
+                                         dataset, control, again, progress, times)
         patch, rows, extra = choice.encoding, choice.rows, choice.stats
         writer = writer.with_prefix_psnr(extra.get("retrain", {}).get("prefix_psnr"))
         written = _write(writer, patch, progress, times)

@@ -26,6 +26,7 @@ from .config import (
     RETRAINED_MAX_SKETCH_SHARE,
     RETRAINED_PATCH_LAYERS,
     TARGET_GROUPS_PER_ENTRY,
+    AllocationConfig,
     EncoderConfig,
     PatchConfig,
     RetrainConfig,
@@ -99,6 +100,7 @@ def preset_config(name: str, base: EncoderConfig | None = None,
         use_sketch=base.use_sketch and values.get("use_sketch", True),
         retrain=retrain_config,
         max_sketch_share=sketch_share,
+        keep_all=values["retrain"] is None,
     )
 
 
@@ -116,7 +118,9 @@ def with_layers(patch: PatchConfig, layers: int) -> PatchConfig:
 def sized(config: EncoderConfig, target_size: int) -> EncoderConfig:
     """``config`` aimed at ``target_size`` bytes by rate control, with the smaller codebooks
     (:data:`TARGET_GROUPS_PER_ENTRY`) that leave the bytes to Gaussians, as ``--target-size``
-    does."""
+    does; without retraining, with the precision search (:class:`AllocationConfig`), which
+    keeps every Gaussian wherever some precision fits them all."""
     return dataclasses.replace(
         config, target_size=target_size,
+        allocation=AllocationConfig() if config.retrain is None else config.allocation,
         patch=dataclasses.replace(config.patch, groups_per_entry=TARGET_GROUPS_PER_ENTRY))

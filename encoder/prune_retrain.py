@@ -1,5 +1,6 @@
-"""The patch stage when it prunes: how many patch Gaussians survive (a factor or a target size),
-which ones, and, with retraining, the retrain stage between pruning and layering.
+"""The patch stage when it prunes: which patch Gaussians survive and, with retraining, the
+retrain stage between pruning and layering. How many survive is :mod:`.sizing`'s to say (a
+factor, a target size or a target PSNR); this module asks it at each point of the stage.
 
 The pipeline calls :func:`encode_pruned_patch` instead of a plain patch encode whenever
 retraining or rate control is on. Without retraining, a target size still works: the least
@@ -10,7 +11,6 @@ retraining, which is why retraining is the default).
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,7 +19,6 @@ import numpy as np
 import torch
 
 from spcodec.cloud import GaussianCloud
-from spcodec.decoder import decode_layers
 from spcodec.imaging.importance import blend_weights
 from spcodec.imaging.render import RenderSettings, resolve_device
 from spcodec.imaging.training.checkpoint import Checkpointer, fingerprint
@@ -29,10 +28,9 @@ from spcodec.writer import WrittenFile
 from .config import EncoderConfig, RetrainConfig
 from .nested import NestedEncoder, layer_priority, layers_of, nested_groups, prefix_ends, prefix_schedule
 from .patch import PatchEncoder, PatchEncoding, Quantized, quantized_cloud
-from .prune import kept_count, prune_by_importance, select
-from .qualitycontrol import CloseupJudge, check_reachable, fewest_reaching
-from .ratecontrol import FIT_SLACK, SNAP_MARGIN, TOLERANCE, TRAIN_MARGIN, RatePlan, fit_count, plan_count
+from .prune import kept_count, select
 from .retrain import RetrainStage, RunControl, spread
+from .sizing import Sizing, pruned_file
 from .stages import ProgressFactory, SceneWriter, SketchOutcome
 
 DISTILLATION_BACKGROUND = (0.0, 0.0, 0.0)
@@ -108,17 +106,18 @@ def factor_trial(sketch: SketchOutcome, patch: GaussianCloud, writer: SceneWrite
         return writer.write_file(None)
     if config.retrain is None or config.target_psnr is not None:
         return None
-    return _pruned_file(writer, PatchEncoder(config.patch, seed=config.seed), patch,
-                        weights[sketch.patch_idx],
-                        kept_count(len(patch), config.retrain.patch_downsample))
+    return pruned_file(writer, PatchEncoder(config.patch, seed=config.seed), patch,
+                       weights[sketch.patch_idx],
+                       kept_count(len(patch), config.retrain.patch_downsample))
 
 
 def encode_pruned_patch(cloud: GaussianCloud, sketch: SketchOutcome, patch: GaussianCloud,
                         writer: SceneWriter, config: EncoderConfig,
                         prepared: PreparedTargets | None, weights: np.ndarray,
-                        dataset: str | Path | None, control: RunControl,
+                        dataset: str | Path | None, control: RunControl, sizing: Sizing,
                         progress: ProgressFactory, times: dict[str, float]) -> PatchChoice:
-    """Prune (and retrain, when ``config.retrain`` is set) the patch, sized by the config.
+    """Prune (and retrain, when ``config.retrain`` is set) the patch, as many as ``sizing``
+    says (:func:`.sizing.sizing_for`).
     ``weights`` rank the whole scene's Gaussians (:func:`scene_weights` when retraining, the
     patch encoder's importance without); ``prepared`` holds the targets (retraining only)."""
     retrain = config.retrain
@@ -128,38 +127,8 @@ def encode_pruned_patch(cloud: GaussianCloud, sketch: SketchOutcome, patch: Gaus
 
     t = time.perf_counter()
     stage = progress("prune", None)
-    plan, judge = None, None
-    if config.target_psnr is not None:
-        judge = CloseupJudge(cloud, up=config.up, antialiased=config.antialiased,
-                             device=control.device)
-        reach = fewest_reaching(config.target_psnr, len(patch),
-                                _judged_trial(writer, encoder, patch, weights, judge))
-        check_reachable(config.target_psnr, reach, retrain is not None)
-        short = [c for c, p in reach.judged.items() if p < config.target_psnr]
-        stats["quality_target"] = {
-            "target_psnr": config.target_psnr, "patch_gaussians": len(patch),
-            "count_without_retraining": reach.count,
-            "psnr_without_retraining": round(reach.psnr, 3),
-            "largest_count_short": max(short, default=0), "judgements": len(reach.judged)}
-        keep = reach.count
-    elif config.target_size is not None:
-        # without retraining the trial's file is the one written: plan it to the fit's slack
-        plan = plan_count(config.target_size, len(patch), _trial(writer, encoder, patch, weights),
-                          TOLERANCE if retrain is not None else FIT_SLACK)
-        stats["rate"] = {"target_bytes": config.target_size, "predicted_bytes":
-                         plan.predicted_bytes, "fixed_bytes": plan.fixed_bytes,
-                         "unpruned_bytes": plan.full_bytes, "predicted_count": plan.count}
-        if plan.note:
-            stats["rate"]["note"] = plan.note
-        if encoder.config.groups_per_entry is not None:  # the codebooks the plan sized for
-            encoder = PatchEncoder(dataclasses.replace(encoder.config,
-                                                       codebooks_sized_for=plan.count),
-                                   seed=encoder.seed, jobs=encoder.jobs)
-        margin = TRAIN_MARGIN if retrain is None or retrain.snap_step is None else SNAP_MARGIN
-        keep = plan.count if retrain is None else \
-            min(len(patch), math.ceil(plan.count * (1 + margin)))
-    else:
-        keep = kept_count(len(patch), retrain.patch_downsample)
+    keep = sizing.plan(patch, weights, writer, encoder, sketch.patch_idx)
+    encoder = sizing.encoder_for(encoder)
     method = retrain.prune if retrain is not None else "importance"
     kept = select(method, len(patch), keep, config.seed, weights)
     stage.done(f"{len(kept)} of {len(patch)} patch Gaussians kept ({method})")
@@ -171,28 +140,26 @@ def encode_pruned_patch(cloud: GaussianCloud, sketch: SketchOutcome, patch: Gaus
         survivors, importance = patch.subset(kept), weights[kept]
         quantized = encoder.quantize(survivors, encoder.kmeans_weights(importance))
         encoding = encoder.layer(survivors, quantized, importance)
-        if plan is not None and len(writer.write(encoding)) > config.target_size:
+        if sizing.overflows(writer, encoding):
             # the plan landed within FIT_SLACK either side: trim the least important that spill
-            top = _rows_that_fit(config.target_size, writer, encoder, survivors, quantized,
-                                 importance)
+            top = sizing.fit(writer, encoder, survivors, quantized, importance)
             encoding = encoder.layer(survivors.subset(top), quantized.subset(top), importance[top])
             kept = kept[top]
-            stats["rate"]["trimmed"] = True
+            sizing.trimmed()
         stage.done(f"{len(kept)} Gaussians in {len(encoding.layers)} layers")
         times["patch"] = time.perf_counter() - t
-        return PatchChoice(encoding, kept, stats)
+        return PatchChoice(encoding, kept, {**stats, **sizing.stats()})
     checkpointer = None
     if control.checkpoint is not None:
         checkpointer = Checkpointer(Path(control.checkpoint), fingerprint(
             cloud, config.to_json(), "" if dataset is None else str(Path(dataset).resolve())))
-    return _retrain(retrain, prepared.targets, writer, encoder, patch, kept, weights[kept], plan,
-                    judge, config, control, checkpointer, progress, times, stats)
+    return _retrain(retrain, prepared.targets, writer, encoder, patch, kept, weights[kept],
+                    sizing, config, control, checkpointer, progress, times, stats)
 
 
 def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
              encoder: PatchEncoder, patch: GaussianCloud, kept: np.ndarray, weights: np.ndarray,
-             plan: RatePlan | None, judge: CloseupJudge | None, config: EncoderConfig,
-             control: RunControl,
+             sizing: Sizing, config: EncoderConfig, control: RunControl,
              checkpointer: Checkpointer | None, progress: ProgressFactory,
              times: dict[str, float], stats: dict) -> PatchChoice:
     layers = encoder.config.layers
@@ -212,8 +179,7 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
     if layer_of is not None:
         stage.visible = prefix_schedule(train_stats["nested_layers"], config.seed,
                                         retrain.nested_full_share)
-    if plan is not None:
-        stage.fit_rows = _row_fit(config.target_size, writer, encoder)
+    stage.fit_rows = sizing.snap_fit(writer, encoder)
 
     t = time.perf_counter()
     clock = TrainingClock()
@@ -232,16 +198,8 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
     quantized, importance = stage.quantize(trained)
     if layer_of is not None:
         importance = layer_priority(importance, layer_of, layers)
-    if plan is not None:  # keep the most important that fit the target
-        top = _rows_that_fit(config.target_size, writer, encoder, trained, quantized, importance)
-        trained, quantized, kept = trained.subset(top), quantized.subset(top), kept[top]
-        importance = importance[top]
-    if judge is not None:  # the fewest trained Gaussians that still reach the target
-        fit = fewest_reaching(config.target_psnr, len(trained), _judged_quantized(
-            writer, encoder, trained, quantized, importance, judge))
-        stats["quality_target"].update(count_retrained=fit.count, psnr_retrained=round(fit.psnr, 3),
-                                reached=fit.reached)
-        top = prune_by_importance(importance, fit.count)
+    top = sizing.fit(writer, encoder, trained, quantized, importance)
+    if top is not None:  # the most important that fit the size, or the fewest that reach
         trained, quantized, kept = trained.subset(top), quantized.subset(top), kept[top]
         importance = importance[top]
     entries = max((len(cb.entries) for cb in quantized.codebooks), default=0)
@@ -264,14 +222,12 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
     prefix, scored = None, False
     while True:
         final = writer.with_prefix_psnr(prefix)
-        if plan is not None and len(trained) > 1 and \
-                len(final.write(encoding)) > config.target_size:
-            top = _rows_that_fit(config.target_size, final, encoder, trained, quantized,
-                                 importance)
+        if len(trained) > 1 and sizing.overflows(final, encoding):
+            top = sizing.fit(final, encoder, trained, quantized, importance)
             trained, quantized, kept = trained.subset(top), quantized.subset(top), kept[top]
             importance = importance[top]
             encoding = encoder.layer(trained, quantized, importance)
-            stats["rate"]["trimmed"] = True
+            sizing.trimmed()
         elif scored:
             break
         prefix = _prefix_psnr(stage, trained, quantized, encoding.order) \
@@ -284,7 +240,7 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
     report.done(f"quantized {train_stats['psnr_quantized']:.2f} dB, finish {gain:+.2f} dB on the "
                 "training views")
     times["finish"] = time.perf_counter() - t
-    stats["retrain"] = train_stats
+    stats.update(sizing.stats(), retrain=train_stats)
     if checkpointer is not None:
         checkpointer.remove()
     return PatchChoice(encoding, kept, stats)
@@ -321,69 +277,6 @@ def build_targets(cloud: GaussianCloud, config: EncoderConfig, dataset: str | Pa
                         views.close_crop, up=config.up) if views.close_views else []
     return distillation_targets(cloud, cameras, config.render_settings(DISTILLATION_BACKGROUND),
                                 device, crops)
-
-
-def _trial(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
-           weights: np.ndarray):
-    """count -> bytes of the file with the ``count`` most important patch Gaussians, coded
-    without retraining (rate control's size model)."""
-    return lambda count: _pruned_file(writer, encoder, patch, weights, count).size
-
-
-def _pruned_file(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
-                 weights: np.ndarray, count: int) -> WrittenFile:
-    """The file with only the ``count`` most important patch Gaussians, coded as they are."""
-    if count == 0:
-        return writer.write_file(None)
-    top = prune_by_importance(weights, count)
-    return writer.write_file(encoder.encode(patch.subset(top), importance=weights[top]))
-
-
-def _judged_trial(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
-                  weights: np.ndarray, judge: CloseupJudge):
-    """count -> close-up PSNR of the file with the ``count`` most important patch Gaussians,
-    coded without retraining (quality control's first search)."""
-    return lambda count: judge(decode_layers(
-        _pruned_file(writer, encoder, patch, weights, count).data).cloud)
-
-
-def _judged_quantized(writer: SceneWriter, encoder: PatchEncoder, trained: GaussianCloud,
-                      quantized: Quantized, importance: np.ndarray, judge: CloseupJudge):
-    """count -> close-up PSNR of the file with the ``count`` most important quantized Gaussians."""
-    def judged(count: int) -> float:
-        top = prune_by_importance(importance, count)
-        data = writer.write(encoder.layer(trained.subset(top), quantized.subset(top),
-                                          importance[top]))
-        return judge(decode_layers(data).cloud)
-    return judged
-
-
-def _row_fit(target: int, writer: SceneWriter, encoder: PatchEncoder):
-    """Rate control when snapping starts: the most important rows whose quantized file fits
-    ``target`` (None when all of them do)."""
-    def fit(cloud: GaussianCloud, quantized: Quantized, importance: np.ndarray):
-        top = _rows_that_fit(target, writer, encoder, cloud, quantized, importance)
-        return None if len(top) >= len(cloud) else top
-    return fit
-
-
-def _rows_that_fit(target: int, writer: SceneWriter, encoder: PatchEncoder, cloud: GaussianCloud,
-                   quantized: Quantized, importance: np.ndarray) -> np.ndarray:
-    """The rows of ``cloud`` to keep so that its file is at most ``target`` bytes: the most
-    important, as many as :func:`fit_count` finds room for on real writes."""
-    count, _ = fit_count(target, len(cloud), _sized(writer, encoder, cloud, quantized,
-                                                    importance))
-    return prune_by_importance(importance, count)
-
-
-def _sized(writer: SceneWriter, encoder: PatchEncoder, trained: GaussianCloud,
-           quantized: Quantized, importance: np.ndarray):
-    """count -> bytes of the file with the ``count`` most important quantized Gaussians."""
-    def size(count: int) -> int:
-        top = prune_by_importance(importance, count)
-        return len(writer.write(encoder.layer(trained.subset(top), quantized.subset(top),
-                                              importance[top])))
-    return size
 
 
 STEP_PER_TARGET_RENDER = 1.0

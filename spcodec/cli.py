@@ -563,9 +563,9 @@ def _add_encode(p: argparse.ArgumentParser) -> None:
                       help="a file of at most SIZE bytes: 150k, 2MB, 300000 (k, M "
                       "decimal; KiB, MiB binary); sets how many patch Gaussians survive pruning "
                       "and, below 8,192 of them, shrinks the codebooks to match; with "
-                      "--no-retrain, a size above the preset's file keeps every Gaussian and "
-                      "raises the precision instead, each attribute's codebook chosen by rate "
-                      "and predicted distortion (default: none, the preset's downsample)")
+                      "--no-retrain, wherever some precision fits every Gaussian, keeps them all "
+                      "and chooses each attribute's codebook by rate and predicted distortion "
+                      "instead (default: none, the preset's downsample)")
     size.add_argument("--target-psnr", type=Bounded(float, 10, 100), metavar="DB",
                       help="the smallest file whose close-up (eval's views at half the distance, "
                       "800x800) reaches DB against the input: %(type)s; sets how many patch "

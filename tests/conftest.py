@@ -34,6 +34,19 @@ def load_fuzzer():
     return module
 
 
+@pytest.fixture(scope="session", autouse=True)
+def private_render_cache(tmp_path_factory):
+    """``spcodec eval`` caches reference renders under ``$XDG_CACHE_HOME``: the suite's go to a
+    folder of its own, never into the user's cache."""
+    before = os.environ.get("XDG_CACHE_HOME")
+    os.environ["XDG_CACHE_HOME"] = str(tmp_path_factory.mktemp("xdg-cache"))
+    yield
+    if before is None:
+        os.environ.pop("XDG_CACHE_HOME", None)
+    else:
+        os.environ["XDG_CACHE_HOME"] = before
+
+
 @pytest.fixture(scope="module")
 def single_torch_thread():
     """Torch on one thread for a module of small training runs: on the 2-core machine its own

@@ -1,0 +1,224 @@
+"""Precision by rate and distortion: which codebook each patch attribute gets (issue 37).
+
+Every patch attribute (scale, rotation, opacity, colour DC, each SH band) can be coded from
+whole-vector codebooks down to one index per component, with up to 256 entries. Each such
+*option* has a rate (the order-0 entropy of its index columns, within 1 % of the per-column
+Huffman code the writer uses, plus the codebook's float16 entries) and a distortion: the image
+MSE it adds, predicted by the linearized renderer (:mod:`spcodec.imaging.sensitivity`) at
+eval's two framings, the sampled views and half their distance. Both are measured on a uniform
+sample of the patch and scaled to all of it.
+
+Distortions of different attributes add (their errors are independent), so one Lagrange
+multiplier ``lam`` chooses every attribute's option at once: the one minimizing
+``distortion + lam * bytes``. Sweeping ``lam`` traces the scene's rate-distortion curve, and a
+size target is the point of it whose predicted bytes fit (:meth:`PrecisionSearch.for_bytes`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from spcodec.cloud import GaussianCloud
+from spcodec.decoder.layers import fill_patch_attributes
+from spcodec.imaging.sensitivity import Sensitivity
+from spcodec.sections import Codebook
+
+from .config import AllocationConfig, EncoderConfig, PatchConfig
+from .patch import assign_attribute, coded_attributes, train_codebook
+
+LADDERS: dict[str, tuple[int, ...]] = {
+    "SCALE": (3, 1), "ROTATION": (4, 2, 1), "OPACITY": (1,), "COLOR_DC": (3, 1),
+    "SH_BAND_1": (9, 3, 1), "SH_BAND_2": (15, 3, 1), "SH_BAND_3": (21, 3, 1)}
+"""Entry dimensions an attribute may take, coarsest first: the whole vector, one index per
+colour triplet or quaternion pair, one per component."""
+
+
+@dataclass(frozen=True)
+class Option:
+    """One way to code one attribute, measured."""
+
+    attribute: str
+    entry_dim: int
+    entries: int
+    index_bits: float
+    """Bits per Gaussian of its index columns (order-0 entropy)."""
+    codebook_bytes: int
+    distortion: float
+    """Predicted image MSE the option adds over the whole patch (both framings, weighted)."""
+
+    def bytes_for(self, count: int) -> float:
+        return count * self.index_bits / 8 + self.codebook_bytes
+
+
+@dataclass(frozen=True)
+class Allocation:
+    """One option per attribute, and what they cost together for ``count`` Gaussians."""
+
+    options: dict[str, Option]
+    count: int
+
+    @property
+    def bytes(self) -> float:
+        return sum(o.bytes_for(self.count) for o in self.options.values())
+
+    @property
+    def distortion(self) -> float:
+        return sum(o.distortion for o in self.options.values())
+
+    def patch_config(self, base: PatchConfig) -> PatchConfig:
+        """``base`` with these entry dimensions and, per attribute, these entry counts."""
+        return dataclasses.replace(
+            base, entry_dims={a: o.entry_dim for a, o in self.options.items()},
+            entry_counts={a: o.entries for a, o in self.options.items()})
+
+    def describe(self) -> dict:
+        return {a: {"entry_dim": o.entry_dim, "entries": o.entries}
+                for a, o in self.options.items()}
+
+
+@dataclass
+class PrecisionSearch:
+    """Every option of every attribute of a patch, measured once; allocations chosen from them."""
+
+    options: dict[str, list[Option]]
+    count: int
+    config: AllocationConfig = field(default_factory=AllocationConfig)
+
+    @classmethod
+    def measure(cls, patch: GaussianCloud, sensitivity: dict[str, Sensitivity],
+                weights: np.ndarray | None, base: PatchConfig, seed: int,
+                config: AllocationConfig | None = None) -> "PrecisionSearch":
+        """Measure every option on a sample of ``patch``. ``sensitivity`` maps each framing
+        ("orbit", "close") to the patch's :class:`Sensitivity`; ``weights`` weight k-means as the
+        patch encoder does."""
+        config = config or AllocationConfig()
+        n = len(patch)
+        rng = np.random.default_rng([seed, 0xA110C])
+        rows = np.sort(rng.choice(n, min(n, config.sample), replace=False)) if n else \
+            np.zeros(0, np.int64)
+        sample = patch.subset(rows)
+        scale = n / max(len(rows), 1)
+        framing = {name: s.subset(rows) for name, s in sensitivity.items()}
+        weight = {"orbit": 1.0, "close": config.close_weight}
+        values = coded_attributes(sample)
+        sample_weights = None if weights is None else np.asarray(weights)[rows]
+        options: dict[str, list[Option]] = {}
+        for index, (attr, coded) in enumerate(values.items()):
+            options[attr.name] = []
+            for dim in LADDERS[attr.name]:
+                for entries in sorted(set(min(c, _distinct(coded, dim)) for c in
+                                          config.entry_counts), reverse=True):
+                    codebook = train_codebook(coded, dim, entries, sample_weights, base,
+                                              seed + 7919 * index)
+                    idx = assign_attribute(attr, coded, codebook)
+                    changed = sample.subset(np.arange(len(sample)))
+                    fill_patch_attributes({attr: idx.T}, [Codebook(attr, codebook)], changed)
+                    mse = sum(weight.get(name, 1.0) * float(s.mse(sample, changed).sum())
+                              for name, s in framing.items())
+                    options[attr.name].append(Option(
+                        attr.name, dim, len(codebook), _index_bits(idx),
+                        int(codebook.size * 2), mse * scale))
+        return cls(options, n, config)
+
+    def matching(self, entry_dims: dict[str, int]) -> Allocation:
+        """The allocation of whole codebooks (the most entries) at ``entry_dims``: a preset's
+        precision, measured like every other option."""
+        chosen = {}
+        for name, opts in self.options.items():
+            dim = entry_dims.get(name, max(o.entry_dim for o in opts))
+            same = [o for o in opts if o.entry_dim == dim] or opts
+            chosen[name] = max(same, key=lambda o: o.entries)
+        return Allocation(chosen, self.count)
+
+    def at(self, lam: float, count: int | None = None) -> Allocation:
+        """The allocation minimizing distortion + ``lam`` * bytes for ``count`` Gaussians."""
+        count = self.count if count is None else count
+        return Allocation({a: min(opts, key=lambda o: o.distortion + lam * o.bytes_for(count))
+                           for a, opts in self.options.items()}, count)
+
+    def curve(self, count: int | None = None) -> list[Allocation]:
+        """Every allocation some ``lam`` chooses, smallest first (the lower convex hull)."""
+        lams = np.concatenate([[0.0], np.geomspace(1e-14, 1e2, 400), [np.inf]])
+        seen, out = set(), []
+        for lam in lams:
+            allocation = self.at(float(lam) if np.isfinite(lam) else 1e30, count)
+            key = tuple(sorted((a, o.entry_dim, o.entries)
+                               for a, o in allocation.options.items()))
+            if key not in seen:
+                seen.add(key)
+                out.append(allocation)
+        return sorted(out, key=lambda a: a.bytes)
+
+    def slope_at(self, allocation: Allocation) -> float:
+        """Distortion saved per byte by the next larger allocation on the curve (0 at its top):
+        what a byte spent elsewhere costs at ``allocation``."""
+        larger = [a for a in self.curve(allocation.count) if a.bytes > allocation.bytes]
+        if not larger:
+            return 0.0
+        step = min(larger, key=lambda a: a.bytes)
+        return max(allocation.distortion - step.distortion, 0.0) / (step.bytes - allocation.bytes)
+
+    def for_bytes(self, budget: float, count: int | None = None) -> Allocation | None:
+        """The least-distortion allocation whose attribute bytes fit ``budget`` (None when even
+        the smallest does not): the best point of the curve under it, then single-attribute
+        upgrades, best distortion saved per byte first, while they fit (the curve's points
+        can lie several percent apart; the upgrades fill the gap)."""
+        fitting = [a for a in self.curve(count) if a.bytes <= budget]
+        if not fitting:
+            return None
+        best = min(fitting, key=lambda a: a.distortion)
+        while True:
+            upgrades = []
+            for name, options in self.options.items():
+                current = best.options[name]
+                for option in options:
+                    extra = option.bytes_for(best.count) - current.bytes_for(best.count)
+                    saved = current.distortion - option.distortion
+                    if extra > 0 and saved > 0 and best.bytes + extra <= budget:
+                        upgrades.append((saved / extra, name, option))
+            if not upgrades:
+                return best
+            _, name, option = max(upgrades, key=lambda u: u[0])
+            best = Allocation({**best.options, name: option}, best.count)
+
+
+def _distinct(coded: np.ndarray, dim: int) -> int:
+    """How many distinct ``dim``-wide groups the values hold (a codebook needs no more)."""
+    groups = coded.reshape(-1, dim)
+    return max(1, len(np.unique(groups.astype(np.float16), axis=0)))
+
+
+def _index_bits(indices: np.ndarray) -> float:
+    """Bits per row of ``indices`` (n, groups): each column's order-0 entropy."""
+    n = len(indices)
+    if n == 0:
+        return 0.0
+    bits = 0.0
+    for column in indices.T:
+        p = np.bincount(column, minlength=256)[np.bincount(column, minlength=256) > 0] / n
+        bits -= float((p * np.log2(p)).sum())
+    return bits
+
+
+
+def patch_sensitivity(patch: GaussianCloud, config: EncoderConfig, allocation: AllocationConfig,
+                      device: str = "auto") -> dict[str, Sensitivity]:
+    """The patch's :class:`Sensitivity` at the sampled framing ("orbit") and at half its distance
+    ("close"), over training views (eval's held-out views are never looked at)."""
+    from spcodec.imaging.render import resolve_device
+    from spcodec.imaging.sensitivity import render_sensitivity
+    from spcodec.imaging.views import robust_bounds, sample_views
+
+    size = (allocation.resolution, allocation.resolution)
+    orbit = sample_views(patch, allocation.views, resolution=size, split="train", up=config.up,
+                         seed=config.seed)
+    centre = robust_bounds(patch).centre
+    settings = config.render_settings((0.0, 0.0, 0.0))
+    device = resolve_device(device)
+    return {name: render_sensitivity(patch, cameras, settings, allocation.probes, device,
+                                     config.seed)
+            for name, cameras in (("orbit", orbit),
+                                  ("close", [c.dollied(centre, 0.5) for c in orbit]))}

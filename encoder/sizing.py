@@ -1,0 +1,379 @@
+"""How many patch Gaussians a file keeps: the one owner of rate and quality control.
+
+The patch stage and the retraining stage ask a :class:`Sizing` where they used to branch on
+``config.target_size`` and ``config.target_psnr`` themselves. There are three:
+
+* :class:`FactorSizing`: no target; keep ``1 / patch_downsample`` of the patch (all of it
+  without retraining);
+* :class:`SizeTarget`: ``--target-size``, by :mod:`.ratecontrol` on real writes;
+* :class:`QualityTarget`: ``--target-psnr``, by :mod:`.qualitycontrol` on real renders.
+
+Each answers the same questions at the same points of an encode: how many to keep before any
+training (:meth:`Sizing.plan`), which rows of a quantized patch to keep (:meth:`Sizing.fit`,
+after retraining, and :meth:`Sizing.snap_fit` while snapping), and whether a written file must
+lose more (:meth:`Sizing.overflows`). What each decided goes into the encode statistics under
+its own key (:meth:`Sizing.stats`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import Callable
+
+import numpy as np
+
+from spcodec.cloud import GaussianCloud
+from spcodec.decoder import decode_layers
+from spcodec.errors import UsageError
+from spcodec.imaging.sensitivity import Sensitivity
+
+from .allocation import Allocation, PrecisionSearch, patch_sensitivity
+from .config import EncoderConfig, PatchConfig
+from .patch import PatchEncoder, PatchEncoding, Quantized
+from .prune import kept_count, prune_by_importance
+from .qualitycontrol import CloseupJudge, check_reachable, fewest_reaching
+from .ratecontrol import FIT_SLACK, SNAP_MARGIN, TOLERANCE, TRAIN_MARGIN, fit_count, plan_count
+from .stages import SceneWriter, SketchOutcome
+
+ALLOCATION_TRIALS = 4
+"""Real writes the precision search may make to land its allocation under the target."""
+
+RowFit = Callable[[GaussianCloud, Quantized, np.ndarray], "np.ndarray | None"]
+"""``(cloud, quantized, importance) -> rows to keep`` (None: all of them)."""
+
+
+class Sizing:
+    """No target: the retrain config's downsample factor decides, and nothing is trimmed."""
+
+    def __init__(self, config: EncoderConfig) -> None:
+        self.config = config
+        self.record: dict = {}
+
+    def plan(self, patch: GaussianCloud, weights: np.ndarray, writer: SceneWriter,
+             encoder: PatchEncoder, rows: np.ndarray | None = None) -> int:
+        """How many of ``patch`` (ranked by ``weights``; ``rows`` of the input scene) to keep
+        before any training."""
+        retrain = self.config.retrain
+        return len(patch) if retrain is None else kept_count(len(patch), retrain.patch_downsample)
+
+    def encoder_for(self, encoder: PatchEncoder) -> PatchEncoder:
+        """The patch encoder to quantize with (a target fixes the codebooks' sizes)."""
+        return encoder
+
+    def snap_fit(self, writer: SceneWriter, encoder: PatchEncoder) -> RowFit | None:
+        """Rate control while retraining snaps to codebooks (None: none)."""
+        return None
+
+    def fit(self, writer: SceneWriter, encoder: PatchEncoder, cloud: GaussianCloud,
+            quantized: Quantized, importance: np.ndarray) -> np.ndarray | None:
+        """Rows of a quantized ``cloud`` to keep (None: all), most important first."""
+        return None
+
+    def overflows(self, writer: SceneWriter, encoding: PatchEncoding) -> bool:
+        """Whether the file ``writer`` makes of ``encoding`` is over the target."""
+        return False
+
+    def drops_sketch(self, cloud: GaussianCloud, sketch: SketchOutcome, writer: SceneWriter,
+                     encoding: PatchEncoding) -> bool:
+        """Whether the file is better without its sketch, every Gaussian patch (``encoding``:
+        the patch encoded beside it)."""
+        return False
+
+    def trimmed(self) -> None:
+        """Note that the written file had to lose Gaussians after its fit."""
+
+    def inherit(self, earlier: "Sizing") -> None:
+        """Take over what an earlier sizing of the same scene measured (an encode made again
+        without its sketch)."""
+
+    def stats(self) -> dict:
+        """What was decided, for the encode statistics."""
+        return dict(self.record)
+
+
+class FactorSizing(Sizing):
+    """The default: no size or quality asked (see :class:`Sizing`)."""
+
+
+class SizeTarget(Sizing):
+    """``--target-size``: a file of at most ``config.target_size`` bytes.
+
+    With retraining, and without ``config.allocation``, the least important patch Gaussians are
+    dropped until the file fits. Without retraining and with ``config.allocation`` set, every
+    Gaussian stays wherever some precision fits them all: the rate-distortion search
+    (:mod:`.allocation`) picks each attribute's codebook for the bytes left, finer than the
+    preset's above its file, coarser below it; only a target under the coarsest such file
+    prunes. A target the preset's own file already fills (within the fit's slack) is left to
+    it."""
+
+    def __init__(self, config: EncoderConfig, original: GaussianCloud | None = None,
+                 device: str = "auto") -> None:
+        super().__init__(config)
+        self.target = int(config.target_size)
+        self.original, self.device = original, device
+        self.predicted_count: int | None = None
+        self.allocated: PatchConfig | None = None
+        self.search: PrecisionSearch | None = None
+        self.chosen: Allocation | None = None
+        self.sensitivity: dict[str, Sensitivity] | None = None
+
+    def plan(self, patch: GaussianCloud, weights: np.ndarray, writer: SceneWriter,
+             encoder: PatchEncoder, rows: np.ndarray | None = None) -> int:
+        retrain = self.config.retrain
+        # without retraining the trial's file is the one written: plan it to the fit's slack
+        plan = plan_count(self.target, len(patch), _trial(writer, encoder, patch, weights),
+                          TOLERANCE if retrain is not None else FIT_SLACK)
+        self.record["rate"] = {"target_bytes": self.target, "predicted_bytes":
+                               plan.predicted_bytes, "fixed_bytes": plan.fixed_bytes,
+                               "unpruned_bytes": plan.full_bytes, "predicted_count": plan.count}
+        if plan.note:
+            self.record["rate"]["note"] = plan.note
+        self.predicted_count = plan.count
+        if self.config.keep_all and plan.count < len(patch):
+            raise UsageError(
+                f"target size {self.target:,} bytes is below this preset's file with every "
+                f"Gaussian kept ({plan.full_bytes:,} bytes), and it never drops one: ask for at "
+                f"least {plan.full_bytes:,} bytes, or use another preset, whose rate control "
+                "prunes the least important")
+        if retrain is None:
+            if self.config.allocation is not None and not self.config.keep_all and \
+                    not plan.full_bytes * (1 - FIT_SLACK) <= self.target <= plan.full_bytes:
+                self.allocate(patch, weights, writer, encoder, plan.full_bytes, rows, plan.count)
+                if self.allocated is not None:
+                    return len(patch)
+            return plan.count
+        margin = TRAIN_MARGIN if retrain.snap_step is None else SNAP_MARGIN
+        return min(len(patch), math.ceil(plan.count * (1 + margin)))
+
+    def allocate(self, patch: GaussianCloud, weights: np.ndarray, writer: SceneWriter,
+                 encoder: PatchEncoder, full_bytes: int, rows: np.ndarray | None,
+                 pruned_count: int) -> None:
+        """Choose the precision that fills the target with every Gaussian kept: above the
+        preset's file when it is predicted to beat the preset's precision; below it when its
+        file renders closer to the input than the preset's file pruned to ``pruned_count``
+        (:meth:`_renders_closer`: pruning is no small change, which the model cannot
+        predict)."""
+        start = time.perf_counter()
+        config = self.config.allocation
+        scene = self.original if self.original is not None and rows is not None else patch
+        if self.sensitivity is None or scene is patch:
+            self.sensitivity = patch_sensitivity(scene, self.config, config, self.device)
+        framings = self.sensitivity if scene is patch else \
+            {name: s.subset(rows) for name, s in self.sensitivity.items()}
+        search = PrecisionSearch.measure(patch, framings, encoder.kmeans_weights(weights),
+                                         encoder.config, self.config.seed, config)
+        preset = search.matching(encoder.config.entry_dims)
+        other = full_bytes - preset.bytes  # positions, headers, the sketch: what stays as it is
+        aim = self.target * (1 - FIT_SLACK)
+        chosen, written, ratio, tried, data = None, None, 1.0, None, None
+        for _ in range(ALLOCATION_TRIALS):
+            # entropy predicts the index bytes to within the coder's context gains, which the
+            # real write measures: each trial rescales the budget by the last one's miss
+            candidate = search.for_bytes((aim - other) / ratio)
+            if candidate is None or candidate == tried or \
+                    (full_bytes <= self.target and candidate.distortion >= preset.distortion):
+                break
+            tried = candidate
+            trial = pruned_file(writer, PatchEncoder(candidate.patch_config(encoder.config),
+                                                     seed=encoder.seed, jobs=encoder.jobs),
+                                patch, weights, len(patch))
+            size = trial.size
+            if size <= self.target and (written is None or size > written):
+                chosen, written, data = candidate, size, trial.data
+            if self.target * (1 - 3 * FIT_SLACK) <= size <= self.target:
+                break
+            ratio = max(size - other, 1.0) / max(candidate.bytes, 1.0)
+        record = {"preset_distortion": preset.distortion}
+        if chosen is not None and full_bytes > self.target:
+            pruned = pruned_file(writer, encoder, patch, weights, pruned_count).data
+            errors = self._render_errors([data, pruned])
+            record["measured_mse"] = {"every_gaussian": errors[0], "pruned": errors[1]}
+            if errors[0] >= errors[1]:
+                chosen = None
+        record["seconds"] = round(time.perf_counter() - start, 2)
+        if chosen is not None:
+            self.allocated = chosen.patch_config(encoder.config)
+            self.search, self.chosen = search, chosen
+            record.update(options=chosen.describe(), predicted_distortion=chosen.distortion)
+            self.record["rate"].update(predicted_bytes=written)
+            self.record["rate"].pop("note", None)
+        self.record["rate"]["precision"] = record
+
+    def _render_errors(self, files: list[bytes]) -> list[float]:
+        """Image MSE of each file against the input at the search's training views, both
+        framings weighted as its distortion is."""
+        from spcodec.imaging.render import RenderSettings, render_image
+        from spcodec.imaging.views import robust_bounds, sample_views
+
+        config = self.config.allocation
+        original = self.original
+        size = (config.resolution, config.resolution)
+        orbit = sample_views(original, config.views, resolution=size, split="train",
+                             up=self.config.up, seed=self.config.seed)
+        centre = robust_bounds(original).centre
+        cameras = [(1.0, c) for c in orbit] + \
+            [(config.close_weight, c.dollied(centre, 0.5)) for c in orbit]
+        settings = RenderSettings(background=(0.0, 0.0, 0.0),
+                                  antialiased=self.config.antialiased,
+                                  blur_variance=self.config.low_pass(False))
+        reference = [render_image(original, c, settings) for _, c in cameras]
+        errors = []
+        for data in files:
+            cloud = decode_layers(data).cloud
+            errors.append(sum(w * float(np.mean((render_image(cloud, c, settings) - r) ** 2))
+                              for (w, c), r in zip(cameras, reference)) / len(orbit))
+        return errors
+
+    def drops_sketch(self, cloud: GaussianCloud, sketch: SketchOutcome, writer: SceneWriter,
+                     encoding: PatchEncoding) -> bool:
+        """Whether the sketch costs more picture than its bytes buy as precision: its predicted
+        error (the linearized renderer, as every option's) against the marginal rate of the
+        precision curve at the chosen point times the bytes the sketch saves (its Gaussians as
+        patch at the chosen precision and at the patch's bytes of position per Gaussian, less
+        the sketch's own sections)."""
+        if self.chosen is None or self.sensitivity is None or not sketch.sources:
+            return False
+        sources = np.concatenate(sketch.sources)
+        decoded = writer.decoded_sketch()
+        weight = {"orbit": 1.0, "close": self.config.allocation.close_weight}
+        error = sum(weight.get(name, 1.0) * float(s.subset(sources).mse(
+            cloud.subset(sources), decoded).sum()) for name, s in self.sensitivity.items())
+        sections = writer.write_file(encoding).layout.section_bytes()
+        sketch_bytes = sum(n for kind, n in sections.items() if kind.startswith("SKETCH"))
+        patch_count = max(sum(len(layer) for layer in encoding.layers), 1)
+        per_gaussian = (self.chosen.bytes + sections.get("PATCH_POSITIONS", 0)) / patch_count
+        saved = len(sources) * per_gaussian - sketch_bytes
+        slope = self.search.slope_at(self.chosen)
+        decision = {"sketch_distortion": error, "bytes_saved": round(saved),
+                    "marginal_distortion_per_byte": slope, "dropped": error > slope * saved}
+        self.record["rate"]["sketch"] = decision
+        return decision["dropped"]
+
+    def encoder_for(self, encoder: PatchEncoder) -> PatchEncoder:
+        if self.allocated is not None:
+            return PatchEncoder(self.allocated, seed=encoder.seed, jobs=encoder.jobs)
+        if encoder.config.groups_per_entry is None or self.predicted_count is None:
+            return encoder
+        # the codebooks the plan sized the file with, whatever count training ends with
+        return PatchEncoder(dataclasses.replace(encoder.config,
+                                                codebooks_sized_for=self.predicted_count),
+                            seed=encoder.seed, jobs=encoder.jobs)
+
+    def snap_fit(self, writer: SceneWriter, encoder: PatchEncoder) -> RowFit:
+        def fit(cloud: GaussianCloud, quantized: Quantized, importance: np.ndarray):
+            top = self.rows_that_fit(writer, encoder, cloud, quantized, importance)
+            return None if len(top) >= len(cloud) else top
+        return fit
+
+    def fit(self, writer: SceneWriter, encoder: PatchEncoder, cloud: GaussianCloud,
+            quantized: Quantized, importance: np.ndarray) -> np.ndarray | None:
+        return self.rows_that_fit(writer, encoder, cloud, quantized, importance)
+
+    def rows_that_fit(self, writer: SceneWriter, encoder: PatchEncoder, cloud: GaussianCloud,
+                      quantized: Quantized, importance: np.ndarray) -> np.ndarray:
+        """The most important rows of ``cloud``, as many as :func:`fit_count` finds room for
+        on real writes."""
+        count, _ = fit_count(self.target, len(cloud),
+                             _sized(writer, encoder, cloud, quantized, importance))
+        return prune_by_importance(importance, count)
+
+    def overflows(self, writer: SceneWriter, encoding: PatchEncoding) -> bool:
+        return writer.write_file(encoding).size > self.target
+
+    def trimmed(self) -> None:
+        self.record["rate"]["trimmed"] = True
+
+    def inherit(self, earlier: Sizing) -> None:
+        if isinstance(earlier, SizeTarget) and earlier.sensitivity is not None:
+            self.sensitivity = earlier.sensitivity  # of the whole scene: the same renders
+
+
+class QualityTarget(Sizing):
+    """``--target-psnr``: the smallest file whose close-up reaches ``config.target_psnr``."""
+
+    def __init__(self, config: EncoderConfig, original: GaussianCloud, device: str) -> None:
+        super().__init__(config)
+        self.target = float(config.target_psnr)
+        self.judge = CloseupJudge(original, up=config.up, antialiased=config.antialiased,
+                                  device=device)
+
+    def plan(self, patch: GaussianCloud, weights: np.ndarray, writer: SceneWriter,
+             encoder: PatchEncoder, rows: np.ndarray | None = None) -> int:
+        reach = fewest_reaching(self.target, len(patch),
+                                _judged_trial(writer, encoder, patch, weights, self.judge))
+        check_reachable(self.target, reach, self.config.retrain is not None)
+        short = [c for c, p in reach.judged.items() if p < self.target]
+        self.record["quality_target"] = {
+            "target_psnr": self.target, "patch_gaussians": len(patch),
+            "count_without_retraining": reach.count,
+            "psnr_without_retraining": round(reach.psnr, 3),
+            "largest_count_short": max(short, default=0), "judgements": len(reach.judged)}
+        return reach.count
+
+    def fit(self, writer: SceneWriter, encoder: PatchEncoder, cloud: GaussianCloud,
+            quantized: Quantized, importance: np.ndarray) -> np.ndarray:
+        """The fewest trained Gaussians that still reach the target."""
+        found = fewest_reaching(self.target, len(cloud), _judged_quantized(
+            writer, encoder, cloud, quantized, importance, self.judge))
+        self.record["quality_target"].update(count_retrained=found.count,
+                                             psnr_retrained=round(found.psnr, 3),
+                                             reached=found.reached)
+        return prune_by_importance(importance, found.count)
+
+
+def sizing_for(config: EncoderConfig, original: GaussianCloud, device: str) -> Sizing:
+    """The sizing ``config`` asks for (the pipeline refuses both targets at once)."""
+    if config.target_psnr is not None:
+        return QualityTarget(config, original, device)
+    if config.target_size is not None:
+        return SizeTarget(config, original, device)
+    return FactorSizing(config)
+
+
+def _trial(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
+           weights: np.ndarray) -> Callable[[int], int]:
+    """count -> bytes of the file with the ``count`` most important patch Gaussians, coded
+    without retraining (rate control's size model)."""
+    return lambda count: pruned_file(writer, encoder, patch, weights, count).size
+
+
+def pruned_file(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
+                weights: np.ndarray, count: int):
+    """The file (:class:`~spcodec.writer.WrittenFile`) with only the ``count`` most important
+    patch Gaussians, coded as they are."""
+    if count == 0:
+        return writer.write_file(None)
+    top = prune_by_importance(weights, count)
+    return writer.write_file(encoder.encode(patch.subset(top), importance=weights[top]))
+
+
+def _judged_trial(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
+                  weights: np.ndarray, judge: CloseupJudge) -> Callable[[int], float]:
+    """count -> close-up PSNR of the file with the ``count`` most important patch Gaussians,
+    coded without retraining (quality control's first search)."""
+    return lambda count: judge(decode_layers(
+        pruned_file(writer, encoder, patch, weights, count).data).cloud)
+
+
+def _judged_quantized(writer: SceneWriter, encoder: PatchEncoder, trained: GaussianCloud,
+                      quantized: Quantized, importance: np.ndarray, judge: CloseupJudge
+                      ) -> Callable[[int], float]:
+    """count -> close-up PSNR of the file with the ``count`` most important quantized Gaussians."""
+    def judged(count: int) -> float:
+        top = prune_by_importance(importance, count)
+        data = writer.write(encoder.layer(trained.subset(top), quantized.subset(top),
+                                          importance[top]))
+        return judge(decode_layers(data).cloud)
+    return judged
+
+
+def _sized(writer: SceneWriter, encoder: PatchEncoder, trained: GaussianCloud,
+           quantized: Quantized, importance: np.ndarray) -> Callable[[int], int]:
+    """count -> bytes of the file with the ``count`` most important quantized Gaussians."""
+    def size(count: int) -> int:
+        top = prune_by_importance(importance, count)
+        return writer.write_file(encoder.layer(trained.subset(top), quantized.subset(top),
+                                               importance[top])).size
+    return size

@@ -1,0 +1,162 @@
+"""Precision by rate and distortion: the linearized renderer, the option curve, and size targets
+that keep every Gaussian and raise the precision instead (encoder/allocation.py, sizing.py)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import spcodec
+from spcodec.encoder.allocation import PrecisionSearch
+from spcodec.encoder.config import AllocationConfig, EncoderConfig, PatchConfig
+from spcodec.encoder.pipeline import encode
+from spcodec.encoder.presets import preset_config, sized
+from spcodec.encoder.ratecontrol import FIT_SLACK
+from spcodec.errors import UsageError
+from spcodec.imaging.render import RenderSettings, render_image
+from spcodec.imaging.sensitivity import render_sensitivity
+from spcodec.imaging.views import sample_views
+from spcodec.synthetic import make_scene
+
+FAST = PatchConfig(kmeans_iterations=10, kmeans_samples=20_000)
+SMALL = AllocationConfig(sample=4_000, views=2, resolution=96, entry_counts=(256, 128, 64, 32, 16))
+
+
+@pytest.fixture(scope="module")
+def scene(single_torch_thread):
+    return make_scene(5, blobs=2500).cloud
+
+
+@pytest.fixture(scope="module")
+def cameras(scene):
+    return sample_views(scene, 3, resolution=(96, 96), split="train")
+
+
+def test_the_linearized_renderer_predicts_the_picture_a_small_change_makes(scene, cameras):
+    """sum(F * delta^2) against the rendered MSE of the same change: colour noise is linear in
+    the image, so the prediction must agree closely; a twice larger change, four times the MSE."""
+    settings = RenderSettings(background=(0.0, 0.0, 0.0))
+    sensitivity = render_sensitivity(scene, cameras, settings, samples=8)
+    reference = [render_image(scene, c, settings) for c in cameras]
+    rng = np.random.default_rng(0)
+    noise = rng.normal(0, 0.02, scene.sh_dc.shape).astype(np.float32)
+    predicted, measured = [], []
+    for scale in (1.0, 2.0):
+        changed = scene.subset(np.arange(len(scene)))
+        changed.sh_dc[:] += scale * noise
+        predicted.append(float(sensitivity.mse(scene, changed).sum()))
+        measured.append(float(np.mean([np.mean((render_image(changed, c, settings) - r) ** 2)
+                                       for c, r in zip(cameras, reference)])))
+    assert 0.5 < predicted[0] / measured[0] < 2.0, (predicted, measured)
+    assert predicted[1] / predicted[0] == pytest.approx(4.0, rel=1e-6)
+
+
+def test_a_quaternion_and_its_negative_multiple_are_no_change(scene, cameras):
+    sensitivity = render_sensitivity(scene, cameras[:1], samples=1)
+    flipped = scene.subset(np.arange(len(scene)))
+    flipped.quats[:] = -3.0 * scene.quats
+    assert float(sensitivity.mse(scene, flipped).sum()) == pytest.approx(0.0, abs=1e-12)
+
+
+@pytest.fixture(scope="module")
+def search(scene, cameras):
+    settings = RenderSettings(background=(0.0, 0.0, 0.0))
+    framings = {"orbit": render_sensitivity(scene, cameras, settings)}
+    return PrecisionSearch.measure(scene, framings, None, FAST, seed=0, config=SMALL)
+
+
+def test_finer_codebooks_predict_less_distortion_for_more_bytes(search):
+    for name, options in search.options.items():
+        whole = {(o.entry_dim, o.entries): o for o in options}
+        widest = max(o.entry_dim for o in options)
+        for (dim, entries), option in whole.items():
+            if dim < widest and (widest, entries) in whole:
+                coarse = whole[(widest, entries)]
+                assert option.distortion <= coarse.distortion * 1.05, (name, dim, entries)
+                assert option.index_bits > coarse.index_bits, (name, dim, entries)
+
+
+def test_the_curve_trades_bytes_for_distortion_and_a_budget_is_met(search):
+    curve = search.curve()
+    assert len(curve) >= 4
+    sizes = [a.bytes for a in curve]
+    distortions = [a.distortion for a in curve]
+    assert sizes == sorted(sizes)
+    assert all(b <= a * (1 + 1e-9) for a, b in zip(distortions, distortions[1:]))
+    middle = (sizes[0] + sizes[-1]) / 2
+    chosen = search.for_bytes(middle)
+    assert chosen is not None and chosen.bytes <= middle
+    assert chosen.distortion <= min(a.distortion for a in curve if a.bytes <= middle)
+    assert search.for_bytes(sizes[0] * 0.5) is None
+    assert search.slope_at(curve[-1]) == 0.0 and search.slope_at(curve[0]) > 0.0
+
+
+def _config(preset: str, target: int | None = None) -> EncoderConfig:
+    config = preset_config(preset, EncoderConfig(patch=FAST))
+    config = dataclasses.replace(config, patch=dataclasses.replace(
+        config.patch, kmeans_iterations=10, kmeans_samples=20_000))
+    if target is None:
+        return config
+    return dataclasses.replace(sized(config, target), allocation=SMALL)
+
+
+@pytest.mark.slow  # whole encodes with the search: 8-14 s each
+def test_a_size_above_the_presets_keeps_every_gaussian_and_buys_precision(scene):
+    """Between balanced and transparent: every Gaussian stays, the file lands within the fit's
+    slack under the target, finer than balanced, and closer to the input than balanced."""
+    balanced = encode(scene, _config("balanced"))
+    transparent = encode(scene, _config("transparent"))
+    target = (len(balanced.data) + len(transparent.data)) // 2
+    middle = encode(scene, _config("balanced", target))
+    assert target * (1 - 3 * FIT_SLACK) <= len(middle.data) <= target
+    assert len(spcodec.decode(middle.data)) == len(scene)
+    precision = middle.stats["rate"]["precision"]
+    assert "options" in precision, precision
+    finer = [a for a, o in precision["options"].items()
+             if o["entry_dim"] < balanced_dims().get(a, 0)]
+    assert finer, precision
+
+    def error(result) -> float:
+        decoded = spcodec.decode(result.data)
+        order = np.argsort(result.source_index)
+        return float(np.mean((decoded.sh_dc[order] - scene.sh_dc) ** 2)
+                     + np.mean((decoded.scales[order] - scene.scales) ** 2))
+    assert error(middle) < error(balanced)
+
+
+def balanced_dims() -> dict[str, int]:
+    return preset_config("balanced").patch.entry_dims
+
+
+@pytest.mark.slow  # whole encodes with the search: 8-14 s each
+def test_a_size_below_the_presets_keeps_every_gaussian_only_where_that_renders_closer(scene):
+    """Under balanced's file, coarser codebooks with every Gaussian kept compete with the
+    preset's file pruned to the target, and the one closer to the input in renders at training
+    views wins; under the coarsest allocation's file, the least important are dropped."""
+    balanced = encode(scene, _config("balanced"))
+    target = int(len(balanced.data) * 0.85)
+    result = encode(scene, _config("balanced", target))
+    assert len(result.data) <= target
+    precision = result.stats["rate"]["precision"]
+    measured = precision["measured_mse"]
+    every = measured["every_gaussian"] < measured["pruned"]
+    assert ("options" in precision) == every
+    assert (len(spcodec.decode(result.data)) == len(scene)) == every
+    if every:
+        assert len(result.data) >= target * (1 - 3 * FIT_SLACK)
+        assert any(o["entries"] < 256 or o["entry_dim"] > balanced_dims().get(a, 0)
+                   for a, o in precision["options"].items()), precision
+    pruned = encode(scene, _config("balanced", int(len(balanced.data) * 0.3)))
+    assert "options" not in pruned.stats["rate"].get("precision", {})
+    assert len(spcodec.decode(pruned.data)) < len(scene)
+
+
+@pytest.mark.slow  # whole encodes with the search: 8-14 s each
+def test_transparent_refuses_a_size_it_would_meet_only_by_dropping_gaussians(scene):
+    transparent = encode(scene, _config("transparent"))
+    with pytest.raises(UsageError, match="never drops one: ask for at least"):
+        encode(scene, _config("transparent", int(len(transparent.data) * 0.8)))
+    kept = encode(scene, _config("transparent", len(transparent.data) + 1000))
+    assert len(spcodec.decode(kept.data)) == len(scene)

@@ -2,7 +2,7 @@
 
 Everything else is declared in pyproject.toml. The viewer is static files beside the JavaScript
 decoder (web/): the page, the decoder's modules and the few files of its npm packages a browser
-loads (PlayCanvas's module build, fzstd, Draco's decoder). They go into the wheel as
+loads (PlayCanvas's module build, Draco's decoder). They go into the wheel as
 ``spcodec/web/...`` with the same relative layout, which ``spcodec.serve`` serves when the package
 runs outside a source checkout. npm's packages are installed first (``npm ci``) when they are
 missing and npm is here; without npm the wheel has no viewer and ``spcodec serve`` says so.
@@ -22,7 +22,6 @@ WEB = ROOT / "web"
 
 VIEWER_FILES = [
     "viewer/index.html", "viewer/src/*.js", "src/*.js", "loaders/*.js", "package.json",
-    "node_modules/fzstd/esm/index.mjs", "node_modules/fzstd/package.json",
     "node_modules/draco3d/draco_decoder_nodejs.js", "node_modules/draco3d/draco_decoder.wasm",
     "node_modules/draco3d/package.json",
     "viewer/node_modules/playcanvas/build/playcanvas.mjs",

@@ -339,7 +339,6 @@ def viewer_missing(web_root: Path | None = None) -> str | None:
                 "its web folder: install it from a source checkout)")
     if not (root / "viewer" / "node_modules" / "playcanvas").is_dir():
         return f"the viewer's npm packages are not installed: run 'npm ci' in {root / 'viewer'}"
-    if not (root / "node_modules" / "fzstd").is_dir() or \
-            not (root / "node_modules" / "draco3d").is_dir():
+    if not (root / "node_modules" / "draco3d").is_dir():
         return f"the decoder's npm packages are not installed: run 'npm ci' in {root}"
     return None

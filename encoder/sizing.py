@@ -153,7 +153,7 @@ class SizeTarget(Sizing):
         """Choose the precision that fills the target with every Gaussian kept: above the
         preset's file when it is predicted to beat the preset's precision; below it when its
         file renders closer to the input than the preset's file pruned to ``pruned_count``
-        (:meth:`_renders_closer`: pruning is no small change, which the model cannot
+        (:meth:`_render_errors`: pruning is no small change, which the model cannot
         predict)."""
         start = time.perf_counter()
         config = self.config.allocation

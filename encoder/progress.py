@@ -182,6 +182,12 @@ def print_summary(stats: dict, stream: TextIO | None = None) -> None:
               + (", trimmed to fit" if rate.get("trimmed") else ""))
         if rate.get("note"):
             print_(f"  note: {rate['note']}")
+        options = rate.get("precision", {}).get("options")
+        if options:  # the precision search kept every Gaussian (encoder/allocation.py)
+            print_("  every Gaussian kept; codebooks (entry dimension x entries): " + ", ".join(
+                f"{name.lower()} {o['entry_dim']}x{o['entries']}" for name, o in options.items())
+                + (", the sketch dropped for precision"
+                   if stats.get("sketch", {}).get("dropped_for_precision") else ""))
     aim = stats.get("quality_target")
     if aim:
         line = (f"  target {aim['target_psnr']:g} dB close up: {aim['count_without_retraining']:,} "

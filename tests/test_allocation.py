@@ -140,8 +140,8 @@ def test_a_size_below_the_presets_keeps_every_gaussian_only_where_that_renders_c
     result = encode(scene, _config("balanced", target))
     assert len(result.data) <= target
     precision = result.stats["rate"]["precision"]
-    measured = precision["measured_mse"]
-    every = measured["every_gaussian"] < measured["pruned"]
+    measured = precision["training_view_psnr"]
+    every = measured["every_gaussian"] > measured["pruned"]
     assert ("options" in precision) == every
     assert (len(spcodec.decode(result.data)) == len(scene)) == every
     if every:

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from spcodec.attributes import PatchAttribute
 from spcodec.cloud import GaussianCloud
 from spcodec.decoder.layers import fill_patch_attributes
 from spcodec.imaging.sensitivity import Sensitivity
@@ -103,24 +104,15 @@ class PrecisionSearch:
         scale = n / max(len(rows), 1)
         framing = {name: s.subset(rows) for name, s in sensitivity.items()}
         weight = {"orbit": 1.0, "close": config.close_weight}
-        values = coded_attributes(sample)
         sample_weights = None if weights is None else np.asarray(weights)[rows]
         options: dict[str, list[Option]] = {}
-        for index, (attr, coded) in enumerate(values.items()):
-            options[attr.name] = []
-            for dim in LADDERS[attr.name]:
-                for entries in sorted(set(min(c, _distinct(coded, dim)) for c in
-                                          config.entry_counts), reverse=True):
-                    codebook = train_codebook(coded, dim, entries, sample_weights, base,
-                                              seed + 7919 * index)
-                    idx = assign_attribute(attr, coded, codebook)
-                    changed = sample.subset(np.arange(len(sample)))
-                    fill_patch_attributes({attr: idx.T}, [Codebook(attr, codebook)], changed)
-                    mse = sum(weight.get(name, 1.0) * float(s.mse(sample, changed).sum())
-                              for name, s in framing.items())
-                    options[attr.name].append(Option(
-                        attr.name, dim, len(codebook), _index_bits(idx),
-                        int(codebook.size * 2), mse * scale))
+        for index, (attr, coded) in enumerate(coded_attributes(sample).items()):
+            options[attr.name] = [
+                _measure_option(sample, attr, coded, dim, entries, sample_weights, base,
+                                seed + 7919 * index, framing, weight, scale)
+                for dim in LADDERS[attr.name]
+                for entries in sorted({min(c, _distinct(coded, dim))
+                                       for c in config.entry_counts}, reverse=True)]
         return cls(options, n, config)
 
     def matching(self, entry_dims: dict[str, int]) -> Allocation:
@@ -185,6 +177,22 @@ class PrecisionSearch:
             best = Allocation({**best.options, name: option}, best.count)
 
 
+def _measure_option(sample: GaussianCloud, attr: PatchAttribute, coded: np.ndarray, dim: int,
+                    entries: int, weights: np.ndarray | None, base: PatchConfig, seed: int,
+                    framing: dict[str, Sensitivity], weight: dict[str, float],
+                    scale: float) -> Option:
+    """One codebook of ``attr`` trained on the sample, its index bits, and the image MSE its
+    values predict over the framings, scaled from the sample to the whole patch."""
+    codebook = train_codebook(coded, dim, entries, weights, base, seed)
+    idx = assign_attribute(attr, coded, codebook)
+    changed = sample.subset(np.arange(len(sample)))
+    fill_patch_attributes({attr: idx.T}, [Codebook(attr, codebook)], changed)
+    mse = sum(weight.get(name, 1.0) * float(s.mse(sample, changed).sum())
+              for name, s in framing.items())
+    return Option(attr.name, dim, len(codebook), _index_bits(idx), int(codebook.size * 2),
+                  mse * scale)
+
+
 def _distinct(coded: np.ndarray, dim: int) -> int:
     """How many distinct ``dim``-wide groups the values hold (a codebook needs no more)."""
     groups = coded.reshape(-1, dim)
@@ -198,7 +206,8 @@ def _index_bits(indices: np.ndarray) -> float:
         return 0.0
     bits = 0.0
     for column in indices.T:
-        p = np.bincount(column, minlength=256)[np.bincount(column, minlength=256) > 0] / n
+        counts = np.bincount(column)
+        p = counts[counts > 0] / n
         bits -= float((p * np.log2(p)).sum())
     return bits
 

@@ -10,9 +10,8 @@ the input rendered the same way. The models are:
 * **weighted**: the attribute's squared error in its coded domain, weighted by each Gaussian's
   blend-weight importance (what weighted k-means minimizes);
 * **gradient**: the expected image MSE of the linearized renderer, sum over Gaussians and
-  parameters of ``F * delta^2``. ``F`` is the diagonal of J^T J, estimated from squared
-  gradients of random projections of the rendered image, ``--samples`` per view, at the same
-  views. Quaternions are compared as the same rotation, sign and norm aligned.
+  parameters of ``F * delta^2`` (:mod:`spcodec.imaging.sensitivity`, the encoder's own model),
+  ``--samples`` random projections per view, at the same views.
 
 One row per option: both predictions, the measured MSE at both framings, and the index columns'
 order-0 entropy plus the codebook (bytes). ::
@@ -35,7 +34,8 @@ from spcodec.cloud import GaussianCloud
 from spcodec.decoder.layers import fill_patch_attributes
 from spcodec.encoder.config import PatchConfig
 from spcodec.encoder.patch import PatchEncoder, assign_attribute, coded_attributes, train_codebook
-from spcodec.imaging.render import GaussianParams, RenderSettings, render, render_image
+from spcodec.imaging.render import GaussianParams, RenderSettings, render_image
+from spcodec.imaging.sensitivity import Sensitivity, render_sensitivity
 from spcodec.imaging.views import robust_bounds, sample_views
 from spcodec.ply import read_ply
 from spcodec.sections import Codebook
@@ -66,44 +66,15 @@ class Views:
                                      for c, r in zip(cams, self.reference[name])]))
                 for name, cams in self.framings.items()}
 
-    def sensitivity(self, cloud: GaussianCloud, samples: int) -> dict[str, list[np.ndarray]]:
-        """Per framing, diag(J^T J) / pixels for each parameter tensor (means, scales, quats,
-        opacities, sh), from squared gradients of random projections of the image."""
-        params = GaussianParams.from_cloud(cloud, requires_grad=True)
-        out = {}
-        for name, cams in self.framings.items():
-            acc = [torch.zeros_like(t) for t in params.tensors()]
-            for camera in cams:
-                for _ in range(samples):
-                    image = render(params, camera, self.settings).image
-                    grads = torch.autograd.grad((image * torch.randn_like(image)).sum(),
-                                                params.tensors(), allow_unused=True)
-                    for a, g in zip(acc, grads):
-                        if g is not None:
-                            a += g.detach() ** 2
-            pixels = camera.width * camera.height * 3
-            out[name] = [(a / (len(cams) * samples * pixels)).numpy().astype(np.float64)
-                         for a in acc]
-        return out
+    def sensitivity(self, cloud: GaussianCloud, samples: int) -> dict[str, Sensitivity]:
+        """Per framing, the renderer linearized (:mod:`spcodec.imaging.sensitivity`)."""
+        return {name: render_sensitivity(cloud, cams, self.settings, samples)
+                for name, cams in self.framings.items()}
 
 
-def aligned_quat_delta(hybrid: np.ndarray, original: np.ndarray) -> np.ndarray:
-    """The hybrid's rotation as a quaternion of the original's norm and sign, minus the original
-    (a decoder normalizes quaternions, and q and -q are one rotation)."""
-    qh, qo = hybrid.astype(np.float64), original.astype(np.float64)
-    unit = qh / np.linalg.norm(qh, axis=1, keepdims=True)
-    sign = np.where((unit * qo).sum(axis=1, keepdims=True) < 0, -1.0, 1.0)
-    return unit * sign * np.linalg.norm(qo, axis=1, keepdims=True) - qo
-
-
-def gradient_prediction(sensitivity: dict, hybrid: GaussianCloud, cloud: GaussianCloud
-                        ) -> dict[str, float]:
-    sh = lambda c: np.concatenate([c.sh_dc[:, None], c.sh_rest], axis=1)  # noqa: E731
-    deltas = [hybrid.means - cloud.means, hybrid.scales - cloud.scales,
-              aligned_quat_delta(hybrid.quats, cloud.quats), hybrid.opacities - cloud.opacities,
-              sh(hybrid) - sh(cloud)]
-    return {name: float(sum((f * d.astype(np.float64) ** 2).sum() for f, d in zip(fs, deltas)))
-            for name, fs in sensitivity.items()}
+def gradient_prediction(sensitivity: dict[str, Sensitivity], hybrid: GaussianCloud,
+                        cloud: GaussianCloud) -> dict[str, float]:
+    return {name: float(s.mse(cloud, hybrid).sum()) for name, s in sensitivity.items()}
 
 
 def entropy_bytes(indices: np.ndarray) -> float:

@@ -26,7 +26,10 @@ import sys
 import time
 from pathlib import Path
 
-DATA = Path(os.environ.get("SPCODEC_DATA", "/work/shared/data"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from scenes import data_dir  # noqa: E402
+
+DATA = data_dir()
 SCENES = {
     "donut": DATA / "v3dg_donut_mipsplatting" / "fused.ply",
     "fourth_st": DATA / "pdal_fourth_st_spz" / "fourth_st_inria.ply",

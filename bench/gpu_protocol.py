@@ -68,8 +68,11 @@ class Summary:
 
     def __init__(self, protocol: Protocol) -> None:
         self.path = protocol.out / "summary.json"
-        self.doc: dict = {"protocol": {k: (str(v) if isinstance(v, Path) else v)
-                                       for k, v in vars(protocol).items() if k != "started"},
+        # folders by name only: the summary is committed to docs/results, machine paths are not
+        named = {"dataset": Path(protocol.dataset).name, "work": protocol.work.name,
+                 "out": protocol.out.name}
+        self.doc: dict = {"protocol": {k: named.get(k, v) for k, v in vars(protocol).items()
+                                       if k != "started"},
                           "steps": []}
 
     def add(self, step: dict) -> None:
@@ -153,8 +156,15 @@ def read_result(p: Protocol, name: str, method: str, ratio: float | None,
                     "sketch_gaussians": stats["sketch_gaussians"],
                     "patch_gaussians": stats["patch_gaussians"],
                     "seconds": {k: round(v, 1) for k, v in stats["seconds"].items()},
-                    "quality": stats.get("quality")})
+                    "quality": _named(stats.get("quality"), p.dataset)})
     return row
+
+
+def _named(quality: dict | None, dataset: str) -> dict | None:
+    """``quality`` with the dataset named by its folder's name, not its path on this machine."""
+    if quality is None or "against" not in quality:
+        return quality
+    return {**quality, "against": quality["against"].replace(dataset, Path(dataset).name)}
 
 
 def evaluate(p: Protocol, name: str) -> dict | None:

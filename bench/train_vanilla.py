@@ -19,8 +19,8 @@ INRIA code runs it on NeRF-synthetic scenes, with every step count scaled to a s
 Writes MODEL.ply (INRIA layout) and MODEL.json (how it was made: command, settings, densification
 log, time, peak memory, machine load, test PSNR/SSIM on the dataset's test split)::
 
-    nice -n 5 python bench/train_vanilla.py /work/shared/data/nerf_synthetic_lego \\
-        -o /work/models/lego_vanilla.ply --downscale 4 --iterations 3000 --threads 1
+    nice -n 5 python bench/train_vanilla.py ../shared/data/nerf_synthetic_lego \\
+        -o lego_vanilla.ply --downscale 4 --iterations 3000 --threads 1
 
 (25 min on the project's shared 2-core machine, 31.6 dB on the test split: docs/RESULTS.md,
 section "Vanilla training"; one torch thread is ~4x faster than two on a loaded machine). Judge
@@ -50,8 +50,7 @@ from spcodec.encoder.progress import StageReporter
 from spcodec.fileio import atomic_write
 from spcodec.imaging.datasets import load_dataset
 from spcodec.imaging.evaluate import EvalConfig, evaluate_against_dataset
-from spcodec.imaging.render import (GaussianParams, RenderSettings, resolve_backend,
-                                   resolve_device)
+from spcodec.imaging.render import GaussianParams, RenderSettings, resolve_backend, resolve_device
 from spcodec.imaging.render.sh import SH_C0
 from spcodec.imaging.training.densify import REFERENCE_ITERATIONS, Densifier, DensifyConfig
 from spcodec.imaging.training.loop import FitLoop, StepReport

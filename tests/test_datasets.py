@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import struct
 import warnings
 from pathlib import Path
@@ -31,7 +30,9 @@ from spcodec.imaging.datasets.colmap_model import (
 )
 from spcodec.imaging.datasets.llff import load_llff
 
-DATA = Path(os.environ.get("SPCODEC_DATA", "/work/shared/data"))
+from conftest import data_dir
+
+DATA = data_dir()
 
 # A camera rotated +90 degrees about the world y axis, centred at C = (1, 2, 3):
 # R = [[0, 0, 1], [0, 1, 0], [-1, 0, 0]] (world-to-camera), t = -R C = (-3, -2, 1).

@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import math
-import os
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,7 +21,9 @@ from spcodec.imaging.views import (
     view_coverage,
 )
 
-DATA = Path(os.environ.get("SPCODEC_DATA", "/work/shared/data"))
+from conftest import data_dir
+
+DATA = data_dir()
 RES = (160, 120)
 
 

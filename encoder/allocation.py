@@ -103,7 +103,7 @@ class PrecisionSearch:
         sample = patch.subset(rows)
         scale = n / max(len(rows), 1)
         framing = {name: s.subset(rows) for name, s in sensitivity.items()}
-        weight = {"orbit": 1.0, "close": config.close_weight}
+        weight = config.framing_weights()
         sample_weights = None if weights is None else np.asarray(weights)[rows]
         options: dict[str, list[Option]] = {}
         for index, (attr, coded) in enumerate(coded_attributes(sample).items()):
@@ -213,21 +213,27 @@ def _index_bits(indices: np.ndarray) -> float:
 
 
 
-def patch_sensitivity(patch: GaussianCloud, config: EncoderConfig, allocation: AllocationConfig,
-                      device: str = "auto") -> dict[str, Sensitivity]:
-    """The patch's :class:`Sensitivity` at the sampled framing ("orbit") and at half its distance
-    ("close"), over training views (eval's held-out views are never looked at)."""
-    from spcodec.imaging.render import resolve_device
-    from spcodec.imaging.sensitivity import render_sensitivity
+def training_framings(cloud: GaussianCloud, config: EncoderConfig,
+                      allocation: AllocationConfig) -> dict[str, list]:
+    """The search's cameras: ``allocation.views`` training views (eval's held-out views are never
+    looked at) at the sampled framing ("orbit") and at half its distance ("close")."""
     from spcodec.imaging.views import robust_bounds, sample_views
 
     size = (allocation.resolution, allocation.resolution)
-    orbit = sample_views(patch, allocation.views, resolution=size, split="train", up=config.up,
+    orbit = sample_views(cloud, allocation.views, resolution=size, split="train", up=config.up,
                          seed=config.seed)
-    centre = robust_bounds(patch).centre
+    centre = robust_bounds(cloud).centre
+    return {"orbit": orbit, "close": [c.dollied(centre, 0.5) for c in orbit]}
+
+
+def patch_sensitivity(patch: GaussianCloud, config: EncoderConfig, allocation: AllocationConfig,
+                      device: str = "auto") -> dict[str, Sensitivity]:
+    """The patch's :class:`Sensitivity` at each of :func:`training_framings`."""
+    from spcodec.imaging.render import resolve_device
+    from spcodec.imaging.sensitivity import render_sensitivity
+
     settings = config.render_settings((0.0, 0.0, 0.0))
     device = resolve_device(device)
     return {name: render_sensitivity(patch, cameras, settings, allocation.probes, device,
                                      config.seed)
-            for name, cameras in (("orbit", orbit),
-                                  ("close", [c.dollied(centre, 0.5) for c in orbit]))}
+            for name, cameras in training_framings(patch, config, allocation).items()}

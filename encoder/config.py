@@ -439,6 +439,10 @@ class AllocationConfig:
     #: Weight of the close framing's MSE against the sampled framing's in the distortion.
     close_weight: float = 1.0
 
+    def framing_weights(self) -> dict[str, float]:
+        """Each framing's weight in the distortion, by the names the search's framings carry."""
+        return {"orbit": 1.0, "close": self.close_weight}
+
     def to_json(self) -> dict:
         return dataclasses.asdict(self)
 

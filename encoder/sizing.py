@@ -29,7 +29,7 @@ from spcodec.decoder import decode_layers
 from spcodec.errors import UsageError
 from spcodec.imaging.sensitivity import Sensitivity
 
-from .allocation import Allocation, PrecisionSearch, patch_sensitivity
+from .allocation import Allocation, PrecisionSearch, patch_sensitivity, training_framings
 from .config import EncoderConfig, PatchConfig
 from .patch import PatchEncoder, PatchEncoding, Quantized
 from .prune import kept_count, prune_by_importance
@@ -208,20 +208,13 @@ class SizeTarget(Sizing):
         the viewer report it: a mean of MSEs let one close view with a hole outweigh seven
         where the file was far better (donut at SPZ/2, docs/RESULTS.md 17.2)."""
         from spcodec.imaging.metrics import psnr
-        from spcodec.imaging.render import RenderSettings, render_image
-        from spcodec.imaging.views import robust_bounds, sample_views
+        from spcodec.imaging.render import render_image
 
-        config = self.config.allocation
-        original = self.original
-        size = (config.resolution, config.resolution)
-        orbit = sample_views(original, config.views, resolution=size, split="train",
-                             up=self.config.up, seed=self.config.seed)
-        centre = robust_bounds(original).centre
-        cameras = [(1.0, c) for c in orbit] + \
-            [(config.close_weight, c.dollied(centre, 0.5)) for c in orbit]
-        settings = RenderSettings(background=(0.0, 0.0, 0.0),
-                                  antialiased=self.config.antialiased,
-                                  blur_variance=self.config.low_pass(False))
+        config, original = self.config.allocation, self.original
+        weight = config.framing_weights()
+        cameras = [(weight[name], camera) for name, group in
+                   training_framings(original, self.config, config).items() for camera in group]
+        settings = self.config.render_settings((0.0, 0.0, 0.0))
         reference = [render_image(original, c, settings) for _, c in cameras]
         total = sum(w for w, _ in cameras)
         scores = []
@@ -242,7 +235,7 @@ class SizeTarget(Sizing):
             return False
         sources = np.concatenate(sketch.sources)
         decoded = writer.decoded_sketch()
-        weight = {"orbit": 1.0, "close": self.config.allocation.close_weight}
+        weight = self.config.allocation.framing_weights()
         error = sum(weight.get(name, 1.0) * float(s.subset(sources).mse(
             cloud.subset(sources), decoded).sum()) for name, s in self.sensitivity.items())
         sections = writer.write_file(encoding).layout.section_bytes()

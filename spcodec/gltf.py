@@ -40,7 +40,7 @@ import struct
 import numpy as np
 
 from .cloud import SH_C0, GaussianCloud
-from .errors import UsageError
+from .errors import FormatError, UsageError
 from .fileio import atomic_write
 
 _UP_TO_Y = {  # glTF (x, y, z, w) quaternions turning each signed axis into +Y
@@ -196,3 +196,59 @@ def _pack_glb(json_bytes: bytes, binary: bytes) -> bytes:
         struct.pack("<II", len(json_chunk), _CHUNK_JSON), json_chunk,
         struct.pack("<II", len(bin_chunk), _CHUNK_BIN), bin_chunk,
     ])
+
+
+# ------------------------------------------------------------- reading an embedded .spc
+def embedded_spc(glb: bytes, name: str) -> bytes:
+    """The bytes of the buffer view that a primitive's ``KHR_gaussian_splatting`` names through
+    ``SPCODEC_gaussian_splatting_compression_spc`` (:func:`compressed_glb_bytes` writes it)."""
+    try:
+        document, binary = _glb_chunks(glb)
+        view = _spc_view(document)
+        spc = None if view is None else _view_bytes(view, binary)
+    except (struct.error, ValueError, KeyError, IndexError, TypeError, AttributeError,
+            RecursionError) as exc:
+        raise FormatError(f"{name}: a glTF file whose embedded .spc cannot be found (malformed "
+                          f"glTF: {exc.__class__.__name__})", "bad-magic") from None
+    if spc is None:
+        raise UsageError(f"{name} is a glTF file whose splats are glTF accessors, not an embedded "
+                         f".spc ({COMPRESSION}, as 'spcodec embed' writes): view it with 'spcodec "
+                         f"serve {name}' or any viewer with {EXTENSION}, or use the .spc it came "
+                         "from")
+    return spc
+
+
+def _glb_chunks(glb: bytes) -> tuple[dict, bytes]:
+    """The JSON document and the binary chunk (empty when absent) of a binary glTF."""
+    json_length, json_type = struct.unpack_from("<II", glb, 12)
+    document = json.loads(glb[20:20 + json_length])
+    if json_type != _CHUNK_JSON or not isinstance(document, dict):
+        raise ValueError("the first chunk is no JSON object")
+    rest = 20 + json_length
+    if len(glb) < rest + 8:
+        return document, b""
+    bin_length, _ = struct.unpack_from("<II", glb, rest)
+    return document, glb[rest + 8:rest + 8 + bin_length]
+
+
+def _view_bytes(view: dict, binary: bytes) -> bytes:
+    """A buffer view's bytes in the GLB's binary chunk (buffer 0), checked against its end."""
+    start, length = view.get("byteOffset", 0), view["byteLength"]
+    valid = view.get("buffer", 0) == 0 and all(type(v) is int and v >= 0 for v in (start, length))
+    if not valid or start + length > len(binary):
+        raise ValueError("the .spc buffer view lies outside the binary chunk")
+    return binary[start:start + length]
+
+
+def _spc_view(document: dict) -> dict | None:
+    """The buffer view holding the .spc; None when no primitive names one."""
+    for mesh in document.get("meshes", []):
+        for primitive in mesh.get("primitives", []):
+            splat = primitive.get("extensions", {}).get(EXTENSION, {})
+            link = splat.get("extensions", {}).get(COMPRESSION)
+            if link is not None:
+                index = link["bufferView"]
+                if type(index) is not int or index < 0:
+                    raise ValueError(f"bufferView {index!r}")
+                return document["bufferViews"][index]
+    return None

@@ -589,7 +589,6 @@ def cmd_encode(args: argparse.Namespace) -> int:
     from .encoder.ratecontrol import parse_size
     from .fileio import atomic_write, check_writable, refuse_same_file
     from .formats import read_scene
-    from .ply import check_finite
 
     refuse_same_file(args.output, args.input)
     check_writable(args.output)
@@ -600,7 +599,6 @@ def cmd_encode(args: argparse.Namespace) -> int:
     preview_size = parse_size(args.preview_size) if args.preview_size is not None else None
     control = run_control(args, config.retrain is not None)
     cloud = read_scene(args.input)  # PLY, compressed.ply, SPZ, .splat, SOG, .ksplat by content
-    check_finite(cloud)  # the pipeline checks too, but names only the first bad array
     reporter = StageReporter(enabled=not args.quiet)
     with _stop_on_ctrl_c(control):
         try:
@@ -739,7 +737,6 @@ def load_model(path: str, max_layer: int | None = None):
     formats registry reads (PLY, SPZ, .splat, SOG, .ksplat; by content)."""
     from .decoder import decode
     from .formats import read_scene
-    from .ply import check_finite
 
     if _is_spc(path):
         return decode(path, max_layer=max_layer)
@@ -747,7 +744,7 @@ def load_model(path: str, max_layer: int | None = None):
         raise UsageError(f"--max-layer needs an .spc input; {path} is not one")
     cloud = read_scene(path)
     try:
-        check_finite(cloud)  # what encode refuses, render and eval refuse too
+        cloud.check_finite()  # what encode refuses, render and eval refuse too
     except FormatError as exc:
         raise FormatError(f"{path}: {exc.args[0]}", exc.code) from None
     return cloud

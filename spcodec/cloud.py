@@ -154,13 +154,25 @@ class GaussianCloud:
         The one check that ``encode``, ``render`` and ``eval`` share: the encoder cannot code
         such values and a renderer would draw garbage (or nothing) without a word, so a scene
         holding them is refused everywhere rather than judged in one place and coded in none.
+        The line names every kind of bad value by its PLY property ("NaN in x; infinite value
+        in opacity"): naming only the first array sent the user to fix one column and run again
+        to meet the next.
         """
-        for name, array in self.arrays().items():
-            bad = ~np.isfinite(array)
-            if bad.any():
-                rows = np.unique(np.nonzero(bad)[0])
-                raise FormatError(f"{len(rows)} Gaussians have NaN or infinite {name} (first: "
-                                  f"#{rows[0]}); remove them from the scene first", "ply-invalid")
+        bad = [(field, array) for field, array in self.arrays().items()
+               if not np.isfinite(array).all()]
+        if not bad:
+            return
+        found: dict[str, list[str]] = {"NaN": [], "infinite value": []}
+        counts = []
+        for field, array in bad:
+            names, columns = _property_columns(field, array)
+            for kind, test in (("NaN", np.isnan), ("infinite value", np.isinf)):
+                found[kind] += [n for n, hit in zip(names, test(columns).any(axis=0)) if hit]
+            rows = np.unique(np.nonzero(~np.isfinite(columns))[0])
+            counts.append(f"{len(rows)} Gaussians have NaN or infinite {field} (first: #{rows[0]})")
+        kinds = [f"{kind} in {_name_list(names)}" for kind, names in found.items() if names]
+        raise FormatError(f"{'; '.join(kinds)}: {', '.join(counts)}; remove them from the scene "
+                          "first", "ply-invalid")
 
     def equals(self, other: "GaussianCloud") -> bool:
         """Bit-exact equality of every array (NaNs compare by bit pattern)."""
@@ -184,3 +196,22 @@ def _as_f32(a: np.ndarray, name: str) -> np.ndarray:
     if arr.dtype != np.float32:
         arr = arr.astype(np.float32)
     return np.ascontiguousarray(arr)
+
+
+def _property_columns(field: str, array: np.ndarray) -> tuple[list[str], np.ndarray]:
+    """One of a cloud's arrays as (PLY property names, an (n, len(names)) array of columns)."""
+    n = len(array)
+    if field == "sh_rest":  # (n, k, 3), written channel-major as f_rest_0..3k-1
+        columns = array.transpose(0, 2, 1).reshape(n, -1)
+        return [f"f_rest_{i}" for i in range(columns.shape[1])], columns
+    columns = array.reshape(n, -1)
+    fixed = {"means": ["x", "y", "z"], "opacities": ["opacity"]}
+    prefix = {"scales": "scale_", "quats": "rot_", "sh_dc": "f_dc_"}.get(field, f"{field}_")
+    return fixed.get(field, [f"{prefix}{i}" for i in range(columns.shape[1])]), columns
+
+
+def _name_list(names: list[str], shown: int = 4) -> str:
+    """``x, y`` or, for many properties, the first few and how many more."""
+    if len(names) <= shown:
+        return ", ".join(names)
+    return f"{', '.join(names[:shown])} and {len(names) - shown} more"

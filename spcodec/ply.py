@@ -152,46 +152,6 @@ def write_ply(path: str | os.PathLike, cloud: GaussianCloud) -> None:
     atomic_write(path, produce)
 
 
-def check_finite(cloud: GaussianCloud) -> None:
-    """Refuse NaN or infinite parameters with one line (``ply-invalid``) that names every kind of
-    bad value by its PLY property ("NaN in x; infinite value in opacity"): naming only the first
-    array found sent the user to fix one column and run again to meet the next."""
-    bad = [(field, array) for field, array in cloud.arrays().items()
-           if not np.isfinite(array).all()]
-    if not bad:
-        return
-    found: dict[str, list[str]] = {"NaN": [], "infinite value": []}
-    counts = []
-    for field, array in bad:
-        names, columns = _property_columns(field, array)
-        for kind, test in (("NaN", np.isnan), ("infinite value", np.isinf)):
-            found[kind] += [n for n, hit in zip(names, test(columns).any(axis=0)) if hit]
-        rows = np.unique(np.nonzero(~np.isfinite(columns))[0])
-        counts.append(f"{len(rows)} Gaussians have NaN or infinite {field} (first: #{rows[0]})")
-    kinds = [f"{kind} in {_name_list(names)}" for kind, names in found.items() if names]
-    raise FormatError(f"{'; '.join(kinds)}: {', '.join(counts)}; remove them from the scene "
-                      "first", "ply-invalid")
-
-
-def _property_columns(field: str, array: np.ndarray) -> tuple[list[str], np.ndarray]:
-    """One of a cloud's arrays as (PLY property names, an (n, len(names)) array of columns)."""
-    n = len(array)
-    if field == "sh_rest":  # (n, k, 3), written channel-major as f_rest_0..3k-1
-        columns = array.transpose(0, 2, 1).reshape(n, -1)
-        return [f"f_rest_{i}" for i in range(columns.shape[1])], columns
-    columns = array.reshape(n, -1)
-    fixed = {"means": ["x", "y", "z"], "opacities": ["opacity"]}
-    prefix = {"scales": "scale_", "quats": "rot_", "sh_dc": "f_dc_"}.get(field, f"{field}_")
-    return fixed.get(field, [f"{prefix}{i}" for i in range(columns.shape[1])]), columns
-
-
-def _name_list(names: list[str], shown: int = 4) -> str:
-    """``x, y`` or, for many properties, the first few and how many more."""
-    if len(names) <= shown:
-        return ", ".join(names)
-    return f"{', '.join(names[:shown])} and {len(names) - shown} more"
-
-
 # --------------------------------------------------------------- PlayCanvas compressed.ply
 def _read_compressed(elements: dict, name) -> GaussianCloud:
     """Unpack SuperSplat's compressed PLY: per-chunk ranges plus 32-bit packed vertex fields."""

@@ -188,7 +188,6 @@ def test_every_kind_of_bad_value_is_named(capsys, tmp_path, small_file, command)
 
 
 def test_bad_values_are_named_by_their_ply_property():
-    from spcodec.ply import check_finite
     from spcodec.synthetic import make_scene
 
     cloud = make_scene(1, curves=1, per_curve=20, blobs=30).cloud
@@ -197,7 +196,7 @@ def test_bad_values_are_named_by_their_ply_property():
     cloud.scales[0, 2] = np.nan
     cloud.means[4, 1] = np.nan
     with pytest.raises(spcodec.FormatError) as caught:
-        check_finite(cloud)
+        cloud.check_finite()
     assert str(caught.value).startswith(f"NaN in y, scale_2; infinite value in f_rest_{2 * k + 1}:")
     assert "\n" not in str(caught.value) and caught.value.code == "ply-invalid"
-    check_finite(make_scene(1, curves=1, per_curve=20, blobs=30).cloud)
+    make_scene(1, curves=1, per_curve=20, blobs=30).cloud.check_finite()

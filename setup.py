@@ -3,9 +3,10 @@
 Everything else is declared in pyproject.toml. The viewer is static files beside the JavaScript
 decoder (web/): the page, the decoder's modules and the few files of its npm packages a browser
 loads (PlayCanvas's module build, Draco's decoder). They go into the wheel as
-``spcodec/web/...`` with the same relative layout, which ``spcodec.serve`` serves when the package
-runs outside a source checkout. npm's packages are installed first (``npm ci``) when they are
-missing and npm is here; without npm the wheel has no viewer and ``spcodec serve`` says so.
+``spcodec/web/...`` with the same relative layout: the web folder beside ``spcodec/cli``, where
+``spcodec.cli.server`` finds it as it finds ``web/`` beside ``cli/`` in a source checkout. npm's
+packages are installed first (``npm ci``) when they are missing and npm is here; without npm the
+wheel has no viewer and ``spcodec serve`` says so.
 """
 
 from __future__ import annotations

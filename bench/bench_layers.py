@@ -32,7 +32,8 @@ import time
 from pathlib import Path
 
 import spcodec
-from spcodec.cli import build_parser, encode_config
+from spcodec.cli import build_parser
+from spcodec.cli.encode import encode_config
 from spcodec.encoder.config import EncoderConfig
 from spcodec.encoder.pipeline import encode
 

@@ -1,6 +1,6 @@
 """``spcodec conformance``: run the suite against a decoder, or regenerate it.
 
-The options are declared with the other commands in ``spcodec/cli.py``; this module does the work,
+The options are declared in ``cli/conformance.py``, beside the other commands; this module does the work,
 so the command line stays a thin layer over :func:`~.runner.run_suite` and
 :func:`~.generate.generate`.
 """

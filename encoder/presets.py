@@ -13,9 +13,9 @@ donut         0.35 MB, 28.5 dB      0.48 MB, 40.7 dB      0.56 MB, 42.1 dB      
 ============  ====================  ====================  ====================  ===============
 
 (fourth_st and biker were decoded from SPZ, so SPZ re-encodes them almost exactly; since their
-positions are stored exactly on SPZ's grid, their files are 2-3 % larger than above, RESULTS 14.4.)
-``docs/RESULTS.md`` has the full, current table; this one records why the defaults are what they
-are.
+positions are stored exactly on SPZ's grid, their files are 2-3 % larger than above, docs/LOG.md 14.4.)
+``docs/LOG.md`` 13.18 has the full, current table (every preset on every shared scene, judged in
+PlayCanvas); this one records why the defaults are what they are (``docs/DECISIONS.md`` D-8).
 """
 
 from __future__ import annotations
@@ -53,12 +53,12 @@ PRESETS: dict[str, dict] = {
                      retrain=dict(patch_downsample=2.0, iterations=3000)),
     # Looks like the original in a viewer, smaller than SPZ: every Gaussian kept, as patch (the
     # sketch's models cost more than they save here), one scalar codebook of 256 levels per
-    # attribute (the budget of docs/RESULTS.md 14.1: the rotation pairs' codebooks and the sketch
+    # attribute (the budget of docs/LOG.md 14.1: the rotation pairs' codebooks and the sketch
     # were most of highrate's loss; scalar rotations are assigned at the best of 64 multiples,
     # encoder/patch.py), 14-bit positions over each layer's box (guitar loses 0.9 dB against 18
     # bits and stays above SPZ; donut needs <= 14 to be smaller than SPZ), and inputs already on
     # a coarser grid (decoded from SPZ) stored exactly on it. Never retrained: pruning would
-    # defeat the point. Measured against SPZ in docs/RESULTS.md 14.4.
+    # defeat the point. Measured against SPZ in docs/LOG.md 14.4.
     "transparent": dict(entry_dims={"SCALE": 1, "ROTATION": 1, "OPACITY": 1, "COLOR_DC": 1,
                                     **_SH_SCALARS}, tau_max=0.1, use_sketch=False,
                         position_bits=14, retrain=None),
@@ -124,3 +124,54 @@ def sized(config: EncoderConfig, target_size: int) -> EncoderConfig:
         config, target_size=target_size,
         allocation=AllocationConfig() if config.retrain is None else config.allocation,
         patch=dataclasses.replace(config.patch, groups_per_entry=TARGET_GROUPS_PER_ENTRY))
+
+
+RETRAINING_OPTIONS = ("dataset", "iterations", "finish_iterations", "views", "close_views",
+                      "resolution", "resume", "checkpoint_every", "downscale", "nested",
+                      "nested_full_share")
+"""Encode options (by their ``spcodec encode`` names, ``-`` as ``_``) that set up retraining."""
+SURVIVOR_OPTIONS = ("target_size", "target_psnr", "patch_downsample")
+"""Encode options that each choose how many patch Gaussians survive: one at most."""
+ENCODE_OPTIONS = (*RETRAINING_OPTIONS, *SURVIVOR_OPTIONS, "prune", "no_retrain")
+"""Every option :func:`check_options` judges."""
+
+
+def check_options(preset: str, **options: object) -> bool:
+    """Refuse encode options that contradict each other or ``preset``, with ValueError and the
+    one-line message ``spcodec encode`` prints; return whether the encode retrains.
+
+    ``options`` are named as on the command line (``no_retrain=True``, ``target_size="150k"``);
+    None or False means not given. The rules live here, beside the presets they depend on, so a
+    library caller building a configuration from such options is refused as the command is.
+    """
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}: use one of {', '.join(PRESETS)}")
+    unknown = sorted(set(options) - set(ENCODE_OPTIONS))
+    if unknown:
+        raise ValueError(f"unknown encode options {', '.join(unknown)}: check_options judges "
+                         f"{', '.join(ENCODE_OPTIONS)}")
+    given = {name for name, value in options.items() if value is not None and value is not False}
+    no_retrain = "no_retrain" in given
+    retrain = not no_retrain and retrains(preset)
+    without = "--no-retrain" if no_retrain else f"--preset {preset} (it never retrains)"
+    if not retrain:
+        named = [_flag(n) for n in RETRAINING_OPTIONS if n in given]
+        if named:
+            raise ValueError(f"{', '.join(named)} only apply to retraining: drop {without} or "
+                             "them")
+    targets = [_flag(n) for n in SURVIVOR_OPTIONS if n in given]
+    if len(targets) > 1:
+        raise ValueError(f"{' and '.join(targets)} each choose how many patch Gaussians survive: "
+                         "give one of them")
+    if "nested_full_share" in given and "nested" not in given:
+        raise ValueError("--nested-full-share sets how --nested trains: give --nested too, or "
+                         "drop it")
+    if not retrain and ({"patch_downsample", "prune"} & given):
+        raise ValueError(f"--patch-downsample and --prune need retraining, which {without} "
+                         "leaves out (give --target-size to prune by importance without it)")
+    return retrain
+
+
+def _flag(name: str) -> str:
+    """An option's name as the command line spells it."""
+    return f"--{name.replace('_', '-')}"

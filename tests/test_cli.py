@@ -105,7 +105,7 @@ def one_line_error(err: str) -> bool:
 
 def _forbid_work(monkeypatch) -> None:
     """Make every command's real work fail loudly, so an error proves it came first."""
-    import spcodec.cli
+    import spcodec.cli.scenes
     import spcodec.decoder
     import spcodec.ply
 
@@ -114,7 +114,7 @@ def _forbid_work(monkeypatch) -> None:
 
     monkeypatch.setattr(spcodec.decoder, "decode_layers", started)
     monkeypatch.setattr(spcodec.ply, "read_ply", started)
-    monkeypatch.setattr(spcodec.cli, "load_model", started)
+    monkeypatch.setattr(spcodec.cli.scenes, "load_model", started)
 
 
 @pytest.mark.parametrize("argv, named", [
@@ -291,7 +291,7 @@ def _subparsers():
 
 
 def test_help_gives_every_option_its_default_and_range():
-    from spcodec.cli import Bounded
+    from spcodec.cli.options import Bounded
     parser, commands = _subparsers()
     assert {"decode", "info", "demo", "encode", "eval", "render"} <= commands.keys()
     for name, sub in [("spcodec", parser), *commands.items()]:
@@ -307,29 +307,82 @@ def test_help_gives_every_option_its_default_and_range():
                 assert str(action.type) in " ".join(text.split()), (name, action.dest)
 
 
-def test_help_defaults_match_the_encoder():
-    from spcodec.cli import (
-        CHECKPOINT_EVERY,
-        DATASET_BLUR_VARIANCE,
-        PATCH_LAYERS_DEFAULT,
-        RETRAIN_DEFAULTS,
-        RETRAINED_PATCH_LAYERS,
-        VIEWER_BLUR_VARIANCE,
-    )
+def _help(command: str) -> str:
+    """``spcodec COMMAND --help`` as one line of single spaces (argparse wraps it)."""
+    return " ".join(_subparsers()[1][command].format_help().split())
+
+
+def _option_help(command: str, dest: str) -> str:
+    """The help of one option of ``command``, as --help shows it (``%(type)s`` filled in)."""
+    sub = _subparsers()[1][command]
+    action = next(a for a in sub._actions if a.dest == dest)
+    return " ".join(sub._get_formatter()._expand_help(action).split())
+
+
+def test_help_shows_the_encoders_defaults():
+    """--help reads its defaults from the encoder's configuration (no copies to keep equal):
+    each configured value appears where the option's help names its default."""
+    from spcodec.cli.encode import CHECKPOINT_EVERY
     from spcodec.encoder import config
-    from spcodec.encoder.config import EncoderConfig, PatchConfig, RetrainConfig
+    from spcodec.encoder.presets import PRESETS
     from spcodec.encoder.retrain import RunControl
     from spcodec.imaging.evaluate import EvalConfig
     from spcodec.imaging.render.settings import BLUR_VARIANCE
-    assert PATCH_LAYERS_DEFAULT == PatchConfig().layers
-    assert VIEWER_BLUR_VARIANCE == config.VIEWER_BLUR_VARIANCE == \
-        EncoderConfig().low_pass(dataset=False)
-    assert DATASET_BLUR_VARIANCE == config.DATASET_BLUR_VARIANCE == \
-        EncoderConfig().low_pass(dataset=True) == EvalConfig().blur_variance == BLUR_VARIANCE
-    assert RETRAINED_PATCH_LAYERS == config.RETRAINED_PATCH_LAYERS
-    assert CHECKPOINT_EVERY == RunControl().checkpoint_every
-    defaults = RetrainConfig()
-    assert RETRAIN_DEFAULTS == {name: getattr(defaults, name) for name in RETRAIN_DEFAULTS}
+
+    text, retrain, patch = _help("encode"), config.RetrainConfig(), config.PatchConfig()
+    for dest, value in [("iterations", retrain.iterations),
+                        ("finish_iterations", retrain.finish_iterations),
+                        ("views", retrain.views), ("close_views", retrain.close_views),
+                        ("resolution", retrain.resolution), ("downscale", retrain.downscale),
+                        ("nested_full_share", retrain.nested_full_share),
+                        ("prune", retrain.prune),
+                        ("checkpoint_every", RunControl().checkpoint_every)]:
+        shown = _option_help("encode", dest)
+        assert shown.endswith(f"(default: {value})"), (dest, shown)
+    assert CHECKPOINT_EVERY == RunControl().checkpoint_every  # the one copy: retrain needs torch
+    assert f"(default: {config.RETRAINED_PATCH_LAYERS} when retraining, {patch.layers} with " \
+        "--no-retrain)" in text
+    assert f"default: {config.RETRAINED_POSITION_BITS} of the scene's extent when retraining, " \
+        f"{config.DEFAULT_POSITION_BITS} without, {PRESETS['transparent']['position_bits']} " \
+        "for --preset transparent" in text
+    assert f"(default: {config.VIEWER_BLUR_VARIANCE}, the viewer's, when distilling; " \
+        f"{config.DATASET_BLUR_VARIANCE} with --dataset" in text
+    assert "default: set by --preset: " + ", ".join(
+        f"{name} {PRESETS[name]['retrain']['patch_downsample']:g}"
+        for name in ("lowrate", "balanced", "highrate")) in text
+    assert _option_help("eval", "blur_variance").endswith(
+        f"(default: {EvalConfig().blur_variance})")
+    assert EvalConfig().blur_variance == config.DATASET_BLUR_VARIANCE == \
+        config.EncoderConfig().low_pass(dataset=True) == BLUR_VARIANCE
+    assert config.VIEWER_BLUR_VARIANCE == config.EncoderConfig().low_pass(dataset=False)
+
+
+def test_the_help_follows_a_changed_configuration(monkeypatch):
+    """The defaults are read when the parser is built, not copied: change one, the help follows."""
+    import dataclasses
+
+    from spcodec.encoder import config
+
+    defaults = config.RetrainConfig
+    monkeypatch.setattr(config, "RETRAINED_PATCH_LAYERS", 9)
+    monkeypatch.setattr(config, "RetrainConfig", lambda: dataclasses.replace(defaults(),
+                                                                             iterations=1234))
+    assert "(default: 9 when retraining" in _help("encode")
+    assert _option_help("encode", "iterations").endswith("(default: 1234)")
+
+
+def test_decode_and_info_never_load_the_encoders_heavy_modules(tmp_path, small_file):
+    """The parser reads the encoder's configuration, which must stay light: a decode through the
+    command line loads neither torch nor scikit-learn."""
+    src = tmp_path / "s.spc"
+    src.write_bytes(small_file)
+    code = ("import sys; from spcodec.cli import main; "
+            f"assert main(['decode', {str(src)!r}, '-o', {str(tmp_path / 'o.ply')!r}]) == 0; "
+            f"assert main(['info', {str(src)!r}]) == 0; "
+            "heavy = sorted(m for m in ('torch', 'sklearn', 'scipy') if m in sys.modules); "
+            "assert not heavy, heavy")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -518,7 +571,8 @@ def test_an_encode_runs_one_torch_thread_unless_told(tmp_path):
     --threads 1: the encoder now takes one thread unless --threads says otherwise."""
     import torch
 
-    from spcodec.cli import build_parser, run_control
+    from spcodec.cli import build_parser
+    from spcodec.cli.encode import run_control
 
     before = torch.get_num_threads()
     try:

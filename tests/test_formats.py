@@ -128,12 +128,12 @@ def test_formats_are_recognized_by_content_not_by_name(tmp_path, name, key):
 
 
 def test_a_gzip_wrapped_spz_is_no_spc_and_a_gzip_spc_no_spz(tmp_path, small_file):
-    from spcodec.cli import _is_spc
+    from spcodec.cli.scenes import is_spc
 
-    assert not _is_spc(str(FIXTURES / "tiny_sh3.v3.spz"))
+    assert not is_spc(str(FIXTURES / "tiny_sh3.v3.spz"))
     wrapped = tmp_path / "s.spc"
     wrapped.write_bytes(gzip.compress(small_file))
-    assert _is_spc(str(wrapped)) and detect(wrapped).key == "spc"
+    assert is_spc(str(wrapped)) and detect(wrapped).key == "spc"
 
 
 def test_the_splat_sniffer_refuses_what_is_not_splats(tmp_path):

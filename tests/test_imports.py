@@ -16,7 +16,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = {"spcodec": "spcodec", "decoder": "spcodec.decoder", "encoder": "spcodec.encoder",
-            "imaging": "spcodec.imaging", "conformance": "spcodec.conformance"}
+            "imaging": "spcodec.imaging", "conformance": "spcodec.conformance", "cli": "spcodec.cli"}
 """Source folder -> the package it installs as (pyproject's package-dir)."""
 
 
@@ -83,7 +83,7 @@ def _parent_packages(name: str) -> set[str]:
 
 def test_the_graph_sees_the_packages():
     assert {"spcodec.encoder.pipeline", "spcodec.imaging.render.api", "spcodec.decoder.api",
-            "spcodec.conformance.cases"} <= set(MODULES)
+            "spcodec.conformance.cases", "spcodec.cli.encode", "spcodec.cli.server"} <= set(MODULES)
     assert "spcodec.encoder.config" in GRAPH["spcodec.encoder.pipeline"]
 
 
@@ -96,14 +96,15 @@ def test_no_module_imports_itself_back(module):
     assert not back, f"{module} imports {back}, which import it back"
 
 
-def test_decoder_and_format_layer_never_reach_the_picture_tools_or_the_encoder():
+def test_decoder_and_format_layer_never_reach_the_picture_tools_the_encoder_or_the_cli():
+    """Every module of spcodec/ and decoder/ (the command line, which dispatches to the encoder,
+    is its own package, cli/)."""
     folders = {name: path.relative_to(ROOT).parts[0] for name, path in MODULES.items()}
-    light = [m for m, folder in folders.items() if folder in ("spcodec", "decoder")
-             and m not in ("spcodec.cli", "spcodec.demo")]  # these two dispatch to the encoder
-    assert "spcodec.decoder.api" in light and "spcodec.writer" in light
+    light = [m for m, folder in folders.items() if folder in ("spcodec", "decoder")]
+    assert "spcodec.decoder.api" in light and "spcodec.writer" in light and "spcodec" in light
     for module in light:
         heavy = {m for m in _reachable(module) if m.startswith(("spcodec.encoder",
-                                                                 "spcodec.imaging"))}
+                                                                 "spcodec.imaging", "spcodec.cli"))}
         assert not heavy, f"{module} reaches {sorted(heavy)}"
 
 
@@ -123,3 +124,15 @@ def test_importing_the_picture_tools_package_loads_no_torch():
             "sys.exit(1 if 'torch' in sys.modules else 0)")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stdout + done.stderr
+
+
+def test_cli_commands_share_only_the_common_modules():
+    """A command module may use the shared ones (options, scenes) and serve its server, never
+    another command: each reads on its own, and the package's ``__init__`` assembles them."""
+    shared = {"spcodec.cli.options", "spcodec.cli.scenes", "spcodec.cli.server"}
+    commands = [m for m in MODULES if m.startswith("spcodec.cli.") and m not in shared
+                and m != "spcodec.cli.__main__"]
+    assert {"spcodec.cli.decode", "spcodec.cli.encode", "spcodec.cli.serve"} <= set(commands)
+    for module in commands:
+        used = {m for m in GRAPH[module] if m.startswith("spcodec.cli")}
+        assert used <= shared, f"{module} imports {sorted(used - shared)}"

@@ -11,7 +11,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import spcodec
-from spcodec.cli import build_parser, encode_config, main
+from spcodec.cli import build_parser, main
+from spcodec.cli.encode import encode_config
 from spcodec.encoder.config import (
     RETRAINED_MAX_SKETCH_SHARE,
     RETRAINED_PATCH_LAYERS,

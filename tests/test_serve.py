@@ -19,8 +19,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from spcodec.cli import main
+from spcodec.cli.server import RangeNotSatisfiable, make_server, parse_range
 from spcodec.errors import UsageError
-from spcodec.serve import RangeNotSatisfiable, make_server, parse_range
 
 from conftest import REPO
 

@@ -1,6 +1,6 @@
 """Running the web viewer in headless Chromium from Python (browser tests and bench_viewer.py).
 
-The page is served by :mod:`spcodec.serve` in a thread; ``web/viewer/test/drive.mjs`` (node +
+The page is served by :mod:`spcodec.cli.server` in a thread; ``web/viewer/test/drive.mjs`` (node +
 playwright-core) visits it and reports the page's progress state and the canvas as PNGs; the
 callers judge them. :func:`missing_tools` says why this cannot run here (no node, no npm packages,
 no chromium, no JavaScript decoder), so tests can skip with that reason.
@@ -20,7 +20,7 @@ import urllib.parse
 from pathlib import Path
 from typing import Iterator, Sequence
 
-from spcodec.serve import SCENE_PREFIX, VIEWER_PAGE, make_server
+from spcodec.cli.server import SCENE_PREFIX, VIEWER_PAGE, make_server
 
 REPO = Path(__file__).resolve().parents[1]
 WEB = REPO / "web"

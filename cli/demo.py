@@ -8,21 +8,39 @@ views and reports PSNR/SSIM of the decoded scene against the original.
 
 from __future__ import annotations
 
+import argparse
 import time
 from pathlib import Path
 
-from .decoder import decode_layers
-from .errors import UsageError
-from .fileio import atomic_write
-from .ply import write_ply
-from .synthetic import make_scene
+from spcodec.errors import UsageError
+
+from .options import EXIT_OK, SEED
+
+NAME = "demo"
+HELP = "run the pipeline on a built-in synthetic scene and write demo.spc/demo.ply"
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    p.add_argument("-o", "--output-dir", default="spcodec-demo",
+                   help="folder for demo.spc and demo.ply, created if missing (default: "
+                   "%(default)s)")
+    p.add_argument("--seed", type=SEED, default=0,
+                   help="seed of the built-in scene: %(type)s (default: %(default)s)")
+
+
+def run(args: argparse.Namespace) -> int:
+    return run_demo(Path(args.output_dir), seed=args.seed)
 
 
 def run_demo(out_dir: Path, seed: int = 0) -> int:
     """Encode, decode and (when possible) evaluate the built-in scene; files go to ``out_dir``."""
-    from .encoder.config import EncoderConfig
-    from .encoder.pipeline import encode
-    from .encoder.progress import StageReporter, print_summary
+    from spcodec.decoder import decode_layers
+    from spcodec.encoder.config import EncoderConfig
+    from spcodec.encoder.pipeline import encode
+    from spcodec.encoder.progress import StageReporter, print_summary
+    from spcodec.fileio import atomic_write
+    from spcodec.ply import write_ply
+    from spcodec.synthetic import make_scene
 
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -48,12 +66,12 @@ def run_demo(out_dir: Path, seed: int = 0) -> int:
         print(f"  layer {layer.index} ({layer.kind}): {len(layer.cloud):,} Gaussians, complete at "
               f"byte {layer.end_offset:,}")
     _report_quality(decoded.cloud, original)
-    return 0
+    return EXIT_OK
 
 
 def _report_quality(decoded, original) -> None:
     """PSNR/SSIM of the decoded scene against the original at sampled views, if torch is here."""
-    from .imaging.evaluate import EvalConfig, evaluate_against_reference
+    from spcodec.imaging.evaluate import EvalConfig, evaluate_against_reference
 
     try:
         report = evaluate_against_reference(decoded, original, EvalConfig(

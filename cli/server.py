@@ -1,4 +1,4 @@
-"""``spcodec serve``: a local HTTP server for the streaming viewer and the scenes it opens.
+"""The HTTP server of ``spcodec serve``: a local server for the streaming viewer and the scenes it opens.
 
 A viewer streams an ``.spc`` with HTTP range requests: it reads the header block, learns from it
 where each layer ends (spec section 3) and fetches the layers one range at a time. Python's
@@ -38,7 +38,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import BinaryIO, Mapping
 
-from .errors import UsageError
+from spcodec.errors import UsageError
 
 SCENE_PREFIX = "/scenes/"
 VIEWER_PAGE = "/viewer/index.html"
@@ -51,13 +51,11 @@ _RANGE = re.compile(r"^\s*([0-9]*)\s*-\s*([0-9]*)\s*$")  # ASCII digits only, as
 
 
 def default_web_root() -> Path:
-    """Where the viewer's files are: the ``web/`` folder of the source tree this package runs from
-    (the viewer lives beside the decoder's npm package), else the copy an installed wheel carries
-    in ``spcodec/web`` (setup.py puts it there)."""
-    source = Path(__file__).resolve().parents[1] / "web"
-    if (source / "viewer" / "index.html").is_file():
-        return source
-    return Path(__file__).resolve().parent / "web"
+    """Where the viewer's files are: the ``web/`` folder beside this package's folder. In a source
+    tree that is the repository's ``web/`` (cli/ and web/ side by side, the viewer beside the
+    decoder's npm package); in an installed wheel, ``spcodec/web`` beside ``spcodec/cli``, the
+    copy setup.py puts there."""
+    return Path(__file__).resolve().parents[1] / "web"
 
 
 class RangeNotSatisfiable(Exception):

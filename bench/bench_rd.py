@@ -32,7 +32,7 @@ Methods (the paper's section "Comparison Methods"):
 * ``spu-target``, ``sps-target``: S&P++ with the patch pruned uniformly (``--prune uniform``)
   or sampled in proportion to blend weight (``--prune sampled``) at the ``--pr-fractions``: the
   sketch of ``sp-target`` with the pruning rule of ``pr-target`` or one between the two, which
-  tells sketch and pruning rule apart where Prune&Retrain wins (RESULTS 13.18).
+  tells sketch and pruning rule apart where Prune&Retrain wins (docs/LOG.md 13.18).
 
 Every encode runs as its own ``spcodec encode`` process under ``/usr/bin/time`` (peak memory
 per run) with ``--stats`` (time per stage). With ``--encoded DIR`` a point whose file
@@ -83,7 +83,7 @@ NO_SKETCH = ("pr", "pr-target")
 """Prune&Retrain: every Gaussian patch (``--no-sketch``)."""
 LABELS = {"sp": "S&P++ (retrained)", "pr": "Prune&Retrain", "noretrain": "no-retrain presets",
           "spz": "SPZ", "sog": "SOG", "spz4": "S&P++ at SPZ/4", "original": "original",
-          # rows added by hand from single encodes (docs/RESULTS.md says which)
+          # rows added by hand from single encodes (docs/LOG.md says which)
           "sp-highrate": "S&P++, highrate codebooks", "sp-target": "S&P++ --target-size",
           "nr-target": "no-retrain --target-size",
           "pr-target": "Prune&Retrain --target-size",

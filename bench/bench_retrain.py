@@ -1,4 +1,4 @@
-"""Retraining on one scene, two questions the encoder's defaults rest on (docs/RESULTS.md, section 11).
+"""Retraining on one scene, two questions the encoder's defaults rest on (docs/LOG.md, section 11).
 
 ``convergence``: PSNR of the pruned and retrained patch (unquantized, no sketch: every Gaussian is
 patch) against renders of the original at ``spcodec eval``'s 8 held-out views, after 0, 250, 500,

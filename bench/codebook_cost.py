@@ -1,4 +1,4 @@
-"""What each codebook costs a retrained patch, at the count rate control chose (docs/RESULTS.md 13.12).
+"""What each codebook costs a retrained patch, at the count rate control chose (docs/LOG.md 13.12).
 
 Runs ``spcodec encode`` with the given arguments; at the start of the quantization-aware finish,
 where the retrained patch and its codebooks are both at hand, it renders the training views

@@ -22,7 +22,7 @@ log, time, peak memory, machine load, test PSNR/SSIM on the dataset's test split
     nice -n 5 python bench/train_vanilla.py ../shared/data/nerf_synthetic_lego \\
         -o lego_vanilla.ply --downscale 4 --iterations 3000 --threads 1
 
-(25 min on the project's shared 2-core machine, 31.6 dB on the test split: docs/RESULTS.md,
+(25 min on the project's shared 2-core machine, 31.6 dB on the test split: docs/LOG.md,
 section "Vanilla training"; one torch thread is ~4x faster than two on a loaded machine). Judge
 the result again with ``spcodec eval MODEL.ply --dataset DIR --downscale N`` (the same N).
 """

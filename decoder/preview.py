@@ -1,7 +1,7 @@
 """The preview of a 1.1 file (spec 7.4): a small whole file in an optional section of layer 0.
 
 A file trained for a tenth of the bytes looks far better than the first tenth of a file trained for
-all of them (docs/RESULTS.md 15.7), so a writer may embed one for a viewer to show until the
+all of them (docs/LOG.md 15.7), so a writer may embed one for a viewer to show until the
 file's own layers overtake it. Decoding the scene never looks inside it ([R-102]): this module is
 the one place that does, and what it finds wrong concerns the preview only ([R-103]).
 """

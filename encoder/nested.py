@@ -2,7 +2,7 @@
 
 Plain retraining optimizes all patch survivors together for the full file and then orders them
 by importance into layers, so a prefix is the full scene with holes in it (guitar: the prefix
-at 30 % of the bytes 20 dB under the full file, docs/RESULTS.md section 12). Here the layers are
+at 30 % of the bytes 20 dB under the full file, docs/LOG.md section 12). Here the layers are
 fixed *before* training, by the same importance split the file would store, and every training
 step renders one layer prefix (the sketch and patch layers 1..k) against the target: the whole
 file at a share of the steps (``nested_full_share``), otherwise a shorter prefix drawn at
@@ -13,7 +13,7 @@ Gaussian never moves to another layer, and rate control drops from the last laye
 
 Training the layers one after the other instead (each with the layers before it frozen) lost
 3 dB on guitar's full file at 1000 steps: the later layers, trained a third of the steps each
-against earlier layers that had moved, never caught up (docs/RESULTS.md 15).
+against earlier layers that had moved, never caught up (docs/LOG.md 15).
 """
 
 from __future__ import annotations

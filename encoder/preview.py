@@ -1,7 +1,7 @@
 """Encoding with a preview (spec 7.4): a small file made for its own size, shown first.
 
 A prefix of a file is a part of a scene trained to be seen whole; on guitar, the first tenth of
-an SPZ/4 file is 8-18 dB under a file trained for that tenth (docs/RESULTS.md 15.7). So
+an SPZ/4 file is 8-18 dB under a file trained for that tenth (docs/LOG.md 15.7). So
 ``--preview-size`` encodes the scene twice: a preview made for the preview's bytes, then the
 scene for what is left of the target, and embeds the first in the second's layer 0, with the
 first layer whose prefix beats it as the takeover layer.

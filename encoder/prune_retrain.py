@@ -218,7 +218,7 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
     encoding = encoder.layer(trained, quantized, importance)
     # Trim the least important until the file fits as written: the finish can grow it, and the
     # metadata then records each prefix's PSNR, scored on what is left (without that table in
-    # the fit, kacytran at SPZ/16 came out 23 bytes over: docs/RESULTS.md 13.20).
+    # the fit, kacytran at SPZ/16 came out 23 bytes over: docs/LOG.md 13.20).
     prefix, scored = None, False
     while True:
         final = writer.with_prefix_psnr(prefix)

@@ -26,7 +26,7 @@ the one free knob is how many patch Gaussians survive pruning:
    PSNR table the metadata then records counted in (``SceneWriter.with_prefix_psnr``; without
    it a small file could end a few bytes over). A file that comes out under stays so, since
    dropped Gaussians cannot come back (on the shared scenes at a quarter of SPZ the finish shrank
-   every file, which ended 0.1-2.3 % under: docs/RESULTS.md 13.15).
+   every file, which ended 0.1-2.3 % under: docs/LOG.md 13.15).
 
 The predicted and actual sizes are both reported.
 """
@@ -53,7 +53,7 @@ TRAIN_MARGIN = 0.06
 SNAP_MARGIN = 0.25
 """The margin when retraining snaps to codebooks: the count is fitted when snapping starts, with
 most steps still to come, and retrained attributes code larger than the untrained ones the
-prediction wrote (22 % on fourth_st, docs/RESULTS.md 11.4), so start well above the prediction."""
+prediction wrote (22 % on fourth_st, docs/LOG.md 11.4), so start well above the prediction."""
 
 MAX_TRIALS = 8
 """Trial writes :func:`plan_count` makes at most (interpolation steps within a bracket)."""

@@ -6,7 +6,7 @@ Gaussians and parameters are nearly uncorrelated, so the diagonal of ``J^T J`` p
 ``sum(F * delta**2)``. The diagonal comes from squared gradients of random projections of the
 image (for r ~ N(0, I), E[(J^T r)^2] = diag(J^T J)), a few backward passes per view.
 
-Measured against renders of hybrids (``bench/bench_distortion_model.py``, docs/RESULTS.md 17.1):
+Measured against renders of hybrids (``bench/bench_distortion_model.py``, docs/LOG.md 17.1):
 within a factor of about two for codebook-quantized scales, rotations, opacities and colours, and
 an underestimate for position grids, whose error moves the 1/255 cut-off of each Gaussian's
 footprint (a step the linearization cannot see).

@@ -195,7 +195,7 @@ FUZZ_FINDINGS = {
     "cluster count claim": "cluster-count-claim",
     "codebook claim": "codebook-entries-claim",
 }
-"""docs/RESULTS.md section 6: each fuzzing finding that a file can express, and its vector (the
+"""docs/LOG.md section 6: each fuzzing finding that a file can express, and its vector (the
 one left out, a file object read in one 4 GiB call, concerns the API, not a file)."""
 
 

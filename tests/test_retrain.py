@@ -319,7 +319,7 @@ def test_target_size_is_a_budget_the_file_fills_synthetic(scene):
 @pytest.mark.training
 def test_the_prefix_table_in_the_metadata_fits_inside_the_target(scene, monkeypatch):
     """The per-prefix PSNR table is scored after the fit and goes into the metadata: its bytes
-    count too (kacytran at SPZ/16 came out 23 bytes over, docs/RESULTS.md 13.20). A long table
+    count too (kacytran at SPZ/16 came out 23 bytes over, docs/LOG.md 13.20). A long table
     makes that excess far larger than the fit's slack, so the file only fits if the table was
     sized with it; the table recorded is the one scored on the Gaussians written."""
     def table(count: int) -> list[dict]:

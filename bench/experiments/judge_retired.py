@@ -1,5 +1,5 @@
 """Judge every prefix of a retire_layers.py file with retirement applied (PlayCanvas, both
-framings; docs/RESULTS.md 15.7).
+framings; docs/LOG.md 15.7).
 
 python bench/experiments/judge_retired.py OUT.json LABEL FILE.spc MAP.json  (SCENE env: guitar)
 Prefix k <= M: sketch + A1 R1 .. Ak Rk (bytes to the end of Rk); prefix k > M: sketch + A1..AM +

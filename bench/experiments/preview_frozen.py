@@ -1,4 +1,4 @@
-"""Experiment (issue 18, docs/RESULTS.md 15.7): a standalone preview file frozen in front of the
+"""Experiment (issue 18, docs/LOG.md 15.7): a standalone preview file frozen in front of the
 main encode. Patches the encoder's SceneWriter; kept to make 15.7 reproducible, not a feature.
 
     PREVIEW=small.spc python bench/experiments/preview_frozen.py encode IN.ply -o MAIN.spc \

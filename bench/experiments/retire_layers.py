@@ -1,4 +1,4 @@
-"""Experiment (issue 18, docs/RESULTS.md 15.7): nested layers where part of layers 1..M *retire*
+"""Experiment (issue 18, docs/LOG.md 15.7): nested layers where part of layers 1..M *retire*
 once layer M+1 arrives. It patches encoder internals (private names), so it may stop working when
 they change; it is kept to make 15.7 reproducible, not as a feature.
 

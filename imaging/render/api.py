@@ -23,7 +23,7 @@ def resolve_device(spec: str = "auto") -> torch.device:
     ``"cuda:N"``: that GPU, or a one-line RuntimeError naming what is missing.
 
     gsplat is not required on CUDA: without it the torch renderer runs there (resolve_backend),
-    and still far faster than on the CPU (docs/RESULTS.md 13.7: five 3000-step encodes at once
+    and still far faster than on the CPU (docs/LOG.md 13.7: five 3000-step encodes at once
     on one H100, 4-10 minutes each)."""
     if spec == "cpu":
         return torch.device("cpu")

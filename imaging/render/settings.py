@@ -37,7 +37,7 @@ class RenderSettings:
     """Mip-Splatting / gsplat ``rasterize_mode="antialiased"`` opacity compensation."""
     blur_variance: float = BLUR_VARIANCE
     """The screen-space low-pass in px^2 (INRIA and gsplat: 0.3). Viewers differ: PlayCanvas adds
-    0.3 in half-pixel units, i.e. 0.075 px^2 (docs/RESULTS.md, section 13); this lets the
+    0.3 in half-pixel units, i.e. 0.075 px^2 (docs/LOG.md, section 13); this lets the
     renderers be compared like for like."""
     near_plane: float = NEAR_PLANE
     sh_degree: int | None = None

@@ -92,7 +92,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     size.add_argument("--target-psnr", type=Bounded(float, 10, 100), metavar="DB",
                       help="the smallest file whose close-up (eval's views at half the distance, "
                       "800x800) reaches DB against the input: %(type)s; sets how many patch "
-                      "Gaussians survive (default: none)")
+                      "Gaussians survive and, with --no-retrain, the precision of each attribute "
+                      "too (default: none)")
     size.add_argument("--preview-size", metavar="SIZE",
                       help="embed a preview of at most SIZE bytes (spec 7.4): the scene encoded "
                       "a second time for that size, which viewers show until the file's own "
@@ -213,7 +214,14 @@ def encode_config(args: argparse.Namespace):
     import dataclasses
 
     from spcodec.encoder.config import EncoderConfig
-    from spcodec.encoder.presets import ENCODE_OPTIONS, check_options, preset_config, sized, with_layers
+    from spcodec.encoder.presets import (
+        ENCODE_OPTIONS,
+        aimed,
+        check_options,
+        preset_config,
+        sized,
+        with_layers,
+    )
     from spcodec.encoder.ratecontrol import parse_size
 
     try:
@@ -225,7 +233,8 @@ def encode_config(args: argparse.Namespace):
         gzip=args.gzip), retrain=retrain)
     if args.target_size is not None:
         config = sized(config, parse_size(args.target_size))
-    config.target_psnr = args.target_psnr
+    if args.target_psnr is not None:
+        config = aimed(config, args.target_psnr)
     config.up, config.antialiased = args.up, args.antialiased
     if args.blur_variance is not None:
         config.blur_variance = args.blur_variance

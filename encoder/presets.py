@@ -126,6 +126,16 @@ def sized(config: EncoderConfig, target_size: int) -> EncoderConfig:
         patch=dataclasses.replace(config.patch, groups_per_entry=TARGET_GROUPS_PER_ENTRY))
 
 
+def aimed(config: EncoderConfig, target_psnr: float) -> EncoderConfig:
+    """``config`` aimed at ``target_psnr`` dB at the close-up framing by quality control, as
+    ``--target-psnr`` does; without retraining, with the precision search
+    (:class:`AllocationConfig`), which bisects the rate-distortion curve for the smallest
+    precision that reaches it before it prunes (encoder/sizing.py)."""
+    return dataclasses.replace(
+        config, target_psnr=target_psnr,
+        allocation=AllocationConfig() if config.retrain is None else config.allocation)
+
+
 RETRAINING_OPTIONS = ("dataset", "iterations", "finish_iterations", "views", "close_views",
                       "resolution", "resume", "checkpoint_every", "downscale", "nested",
                       "nested_full_share")

@@ -47,9 +47,12 @@ RowFit = Callable[[GaussianCloud, Quantized, np.ndarray], "np.ndarray | None"]
 class Sizing:
     """No target: the retrain config's downsample factor decides, and nothing is trimmed."""
 
-    def __init__(self, config: EncoderConfig) -> None:
+    def __init__(self, config: EncoderConfig, original: GaussianCloud | None = None,
+                 device: str = "auto") -> None:
         self.config = config
+        self.original, self.device = original, device
         self.record: dict = {}
+        self.sensitivity: dict[str, Sensitivity] | None = None
 
     def plan(self, patch: GaussianCloud, weights: np.ndarray, writer: SceneWriter,
              encoder: PatchEncoder, rows: np.ndarray | None = None) -> int:
@@ -86,11 +89,27 @@ class Sizing:
 
     def inherit(self, earlier: "Sizing") -> None:
         """Take over what an earlier sizing of the same scene measured (an encode made again
-        without its sketch)."""
+        without its sketch): the sensitivity of the whole scene, the same renders."""
+        if earlier.sensitivity is not None:
+            self.sensitivity = earlier.sensitivity
 
     def stats(self) -> dict:
         """What was decided, for the encode statistics."""
         return dict(self.record)
+
+    def precision_search(self, patch: GaussianCloud, weights: np.ndarray, encoder: PatchEncoder,
+                         rows: np.ndarray | None) -> PrecisionSearch:
+        """Every precision option of ``patch`` measured (:mod:`.allocation`), against the
+        sensitivity of the whole input scene when ``rows`` place the patch in it (the sketch
+        occludes), taken once per sizing and shared with a later one (:meth:`inherit`)."""
+        config = self.config.allocation
+        scene = self.original if self.original is not None and rows is not None else patch
+        if self.sensitivity is None or scene is patch:
+            self.sensitivity = patch_sensitivity(scene, self.config, config, self.device)
+        framings = self.sensitivity if scene is patch else \
+            {name: s.subset(rows) for name, s in self.sensitivity.items()}
+        return PrecisionSearch.measure(patch, framings, encoder.kmeans_weights(weights),
+                                       encoder.config, self.config.seed, config)
 
 
 class FactorSizing(Sizing):
@@ -110,14 +129,12 @@ class SizeTarget(Sizing):
 
     def __init__(self, config: EncoderConfig, original: GaussianCloud | None = None,
                  device: str = "auto") -> None:
-        super().__init__(config)
+        super().__init__(config, original, device)
         self.target = int(config.target_size)
-        self.original, self.device = original, device
         self.predicted_count: int | None = None
         self.allocated: PatchConfig | None = None
         self.search: PrecisionSearch | None = None
         self.chosen: Allocation | None = None
-        self.sensitivity: dict[str, Sensitivity] | None = None
 
     def plan(self, patch: GaussianCloud, weights: np.ndarray, writer: SceneWriter,
              encoder: PatchEncoder, rows: np.ndarray | None = None) -> int:
@@ -156,14 +173,7 @@ class SizeTarget(Sizing):
         (:meth:`_render_psnr`: pruning is no small change, which the model cannot
         predict)."""
         start = time.perf_counter()
-        config = self.config.allocation
-        scene = self.original if self.original is not None and rows is not None else patch
-        if self.sensitivity is None or scene is patch:
-            self.sensitivity = patch_sensitivity(scene, self.config, config, self.device)
-        framings = self.sensitivity if scene is patch else \
-            {name: s.subset(rows) for name, s in self.sensitivity.items()}
-        search = PrecisionSearch.measure(patch, framings, encoder.kmeans_weights(weights),
-                                         encoder.config, self.config.seed, config)
+        search = self.precision_search(patch, weights, encoder, rows)
         preset = search.matching(encoder.config.entry_dims)
         other = full_bytes - preset.bytes  # positions, headers, the sketch: what stays as it is
         aim = self.target * (1 - FIT_SLACK)
@@ -206,7 +216,7 @@ class SizeTarget(Sizing):
         """Mean PSNR (dB) of each file against the input over the search's training views,
         the close framing weighted as in its distortion. The mean of per-view dB, as eval and
         the viewer report it: a mean of MSEs let one close view with a hole outweigh seven
-        where the file was far better (donut at SPZ/2, docs/RESULTS.md 17.2)."""
+        where the file was far better (donut at SPZ/2, docs/LOG.md 17.2)."""
         from spcodec.imaging.metrics import psnr
         from spcodec.imaging.render import render_image
 
@@ -283,32 +293,82 @@ class SizeTarget(Sizing):
     def trimmed(self) -> None:
         self.record["rate"]["trimmed"] = True
 
-    def inherit(self, earlier: Sizing) -> None:
-        if isinstance(earlier, SizeTarget) and earlier.sensitivity is not None:
-            self.sensitivity = earlier.sensitivity  # of the whole scene: the same renders
-
 
 class QualityTarget(Sizing):
-    """``--target-psnr``: the smallest file whose close-up reaches ``config.target_psnr``."""
+    """``--target-psnr``: the smallest file whose close-up reaches ``config.target_psnr``.
+
+    With retraining, or without ``config.allocation``, the knob is how many patch Gaussians
+    survive (:mod:`.qualitycontrol`). Without retraining and with ``config.allocation`` set, it
+    is first the precision: the points of the rate-distortion curve (:mod:`.allocation`), every
+    Gaussian kept, are judged on real files, bisected for the smallest that reaches the target;
+    only a target the coarsest point already exceeds prunes, at that precision."""
 
     def __init__(self, config: EncoderConfig, original: GaussianCloud, device: str) -> None:
-        super().__init__(config)
+        super().__init__(config, original, device)
         self.target = float(config.target_psnr)
         self.judge = CloseupJudge(original, up=config.up, antialiased=config.antialiased,
                                   device=device)
+        self.allocated: PatchConfig | None = None
 
     def plan(self, patch: GaussianCloud, weights: np.ndarray, writer: SceneWriter,
              encoder: PatchEncoder, rows: np.ndarray | None = None) -> int:
+        if self.config.retrain is None and self.config.allocation is not None and len(patch):
+            encoder = self.allocate(patch, weights, writer, encoder, rows)
+            if self.config.keep_all:
+                return len(patch)
         reach = fewest_reaching(self.target, len(patch),
                                 _judged_trial(writer, encoder, patch, weights, self.judge))
         check_reachable(self.target, reach, self.config.retrain is not None)
         short = [c for c, p in reach.judged.items() if p < self.target]
-        self.record["quality_target"] = {
+        self.record.setdefault("quality_target", {}).update({
             "target_psnr": self.target, "patch_gaussians": len(patch),
             "count_without_retraining": reach.count,
             "psnr_without_retraining": round(reach.psnr, 3),
-            "largest_count_short": max(short, default=0), "judgements": len(reach.judged)}
+            "largest_count_short": max(short, default=0), "judgements": len(reach.judged)})
         return reach.count
+
+    def allocate(self, patch: GaussianCloud, weights: np.ndarray, writer: SceneWriter,
+                 encoder: PatchEncoder, rows: np.ndarray | None) -> PatchEncoder:
+        """The smallest point of the precision curve whose file, every patch Gaussian kept,
+        reaches the target (bisected: the judged PSNR rises along the curve), and its encoder.
+        A target beyond the finest point is a UsageError that names what that point reaches."""
+        start = time.perf_counter()
+        curve = self.precision_search(patch, weights, encoder, rows).curve()
+        encoders = [PatchEncoder(point.patch_config(encoder.config), seed=encoder.seed,
+                                 jobs=encoder.jobs) for point in curve]
+        judged: dict[int, float] = {}
+
+        def psnr_at(i: int) -> float:
+            if i not in judged:
+                data = pruned_file(writer, encoders[i], patch, weights, len(patch)).data
+                judged[i] = self.judge(decode_layers(data).cloud)
+            return judged[i]
+
+        lo, hi = -1, len(curve) - 1  # lo: assumed short; hi: known (below: checked) to reach
+        if psnr_at(hi) < self.target:
+            raise UsageError(
+                f"--target-psnr {self.target:g} dB is out of reach without retraining: the finest "
+                f"precision, every Gaussian kept, reaches {judged[hi]:.2f} dB at the close-up "
+                "framing; ask for at most that, retrain (drop --no-retrain), or use --preset "
+                "transparent, which also stores positions finer and keeps every Gaussian apart")
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            if psnr_at(mid) >= self.target:
+                hi = mid
+            else:
+                lo = mid
+        self.allocated = curve[hi].patch_config(encoder.config)
+        self.record["quality_target"] = {
+            "precision": {"options": curve[hi].describe(), "curve_points": len(curve),
+                          "chosen_point": hi, "psnr": round(judged[hi], 3),
+                          "judged": {str(i): round(v, 3) for i, v in sorted(judged.items())},
+                          "seconds": round(time.perf_counter() - start, 2)}}
+        return encoders[hi]
+
+    def encoder_for(self, encoder: PatchEncoder) -> PatchEncoder:
+        if self.allocated is None:
+            return encoder
+        return PatchEncoder(self.allocated, seed=encoder.seed, jobs=encoder.jobs)
 
     def fit(self, writer: SceneWriter, encoder: PatchEncoder, cloud: GaussianCloud,
             quantized: Quantized, importance: np.ndarray) -> np.ndarray:

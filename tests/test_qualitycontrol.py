@@ -13,6 +13,7 @@ import spcodec
 from spcodec.cli import main
 from spcodec.encoder.config import EncoderConfig, RetrainConfig
 from spcodec.encoder.pipeline import encode
+from spcodec.encoder.presets import aimed
 from spcodec.encoder.qualitycontrol import (
     COUNT_TOLERANCE,
     CloseupJudge,
@@ -78,6 +79,33 @@ def test_without_retraining_the_file_is_the_smallest_that_reaches_the_target(sce
         reached, abs=0.01)
     assert aim["largest_count_short"] >= aim["count_without_retraining"] - max(
         1, COUNT_TOLERANCE * aim["patch_gaussians"])
+
+
+@pytest.mark.slow
+def test_without_retraining_the_precision_is_the_smallest_point_of_the_curve_that_reaches(scene):
+    """aimed() bisects the precision curve on real files: the chosen point reaches the target
+    with every Gaussian kept, the next smaller one judged fell short, and the file written is
+    the one judged (its close-up PSNR within 0.3 dB above the target once the count is fitted)."""
+    full = encode(scene, EncoderConfig(seed=3))
+    target = _closeup_psnr(full.data, scene) - 3.0
+    result = encode(scene, aimed(EncoderConfig(seed=3), target))
+    precision = result.stats["quality_target"]["precision"]
+    judged = {int(i): v for i, v in precision["judged"].items()}
+    chosen = precision["chosen_point"]
+    assert judged[chosen] >= target and precision["curve_points"] > 1
+    assert chosen == 0 or judged[chosen - 1] < target
+    assert max(judged) == precision["curve_points"] - 1  # the finest point is judged first
+    reached = _closeup_psnr(result.data, scene)
+    assert target <= reached == pytest.approx(
+        result.stats["quality_target"]["psnr_without_retraining"], abs=0.01)
+    assert len(result.data) < len(full.data)
+
+
+def test_a_quality_target_beyond_the_finest_precision_names_what_it_reaches(scene):
+    with pytest.raises(UsageError, match=r"out of reach without retraining: the finest "
+                       r"precision, every Gaussian kept, reaches \d+\.\d\d dB") as err:
+        encode(scene, aimed(EncoderConfig(seed=3), 99.0))
+    assert "\n" not in str(err.value)
 
 
 @pytest.mark.training

@@ -1,9 +1,9 @@
 """Mutation fuzzing of the decoder: every malformed input is a FormatError, quickly, in bounded memory.
 
 Byte flips alone die at the CRC checks ([R-7], [R-8]), so the mutants here come from the
-structure-aware mutators of ``bench/fuzz_decoder.py``, which edit payloads, stored bytes, header
-fields, section lists and the gzip wrapper and then *repair the checksums*, so that the cluster
-table, codebook, position, Draco, metadata and gzip parsers behind the CRCs are reached.
+structure-aware mutators of ``tests/fuzzing/``, which edit payloads, stored bytes, header fields,
+section lists and the gzip wrapper and then *repair the checksums*, so that the cluster table,
+codebook, position, Draco, metadata and gzip parsers behind the CRCs are reached.
 Hypothesis drives the mutators' choices (and shrinks a failure to a small mutation).
 
 Each mutant goes through ``decode_layers``, ``decode(max_layer=k)``, ``inspect`` (and its JSON)
@@ -14,7 +14,7 @@ the same layers. On top, every example has a time bound, and mutants that claim 
 lengths have a memory bound.
 
 ``HYPOTHESIS_PROFILE=long python -m pytest tests/test_fuzz.py`` runs many more examples;
-``python bench/fuzz_decoder.py`` runs the same mutators for as long as you like.
+``python bench/fuzz_decoder.py`` runs the same mutators and oracle for as long as you like.
 """
 
 from __future__ import annotations
@@ -29,14 +29,12 @@ from hypothesis import strategies as st
 
 import spcodec
 
-from conftest import load_fuzzer
+import fuzzing as fz
 
 TIME_BOUND_S = 3.0
 """Seconds one mutant may take through every entry point (inputs are a few KB; a correct
 decoder answers in milliseconds, so only a hang or a runaway loop gets near this)."""
 
-
-fz = load_fuzzer()
 SEEDS = fz.build_seeds()
 EXAMPLES = settings().max_examples * 3
 """Three times the profile's example count: mutants are cheap (a few ms each)."""

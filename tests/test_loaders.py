@@ -118,8 +118,9 @@ def test_playcanvas_loader_reports_a_corrupt_file_once(files, tmp_path):
 
 
 def test_spark_loader_draws_the_decoded_scene_upright_streamed_and_embedded(files, tmp_path):
-    """Spark draws what Spark draws for the decoded PLY, and the same scene, upright, as
-    PlayCanvas draws it (two renderers: a looser bound, far above an upside-down picture)."""
+    """Spark draws from the arrays the loader packs for it what it draws from the decoded PLY
+    through its own PLY reader, and the same scene, upright, as PlayCanvas draws it (two
+    renderers: a looser bound, far above an upside-down picture)."""
     require("playcanvas", "three", "@sparkjsdev/spark")
     with serving([files["spc"], files["ply"], files["glb"]]) as base:
         streamed = shoot(example_url(base, "spark.html", files["spc"]), tmp_path / "s.png")

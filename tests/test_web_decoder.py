@@ -4,7 +4,7 @@ Files written by the Python writer in every mode (each codec, gzip wrapper on an
 to 3, every patch position mode, Draco runs, an empty sketch, empty patch layers, sketch-only,
 many layers, metadata) are decoded by ``node web/bin/spc-decode.mjs`` whole, with ``--max-layer``
 and as layer prefixes; its PLY must equal the reference decoder's within the tolerances of the
-spec's section 15 ([R-96]). Corrupt files (the structure-aware mutants of bench/fuzz_decoder.py,
+spec's section 15 ([R-96]). Corrupt files (the structure-aware mutants of tests/fuzzing/,
 which repair checksums so the damage reaches the parsers) must be rejected by both decoders with
 the same error code, and accepted by both with the same number of Gaussians.
 
@@ -39,7 +39,8 @@ from spcodec.sections import read_coefficients
 from spcodec.synthetic import random_codebooks, random_patch_layer, random_sketch
 from spcodec.writer import EncodedScene, WriteOptions, build_bitstream, layer_end_offsets
 
-from conftest import REPO, load_fuzzer
+import fuzzing
+from conftest import REPO
 
 WEB = REPO / "web"
 CLI = WEB / "bin" / "spc-decode.mjs"
@@ -253,7 +254,7 @@ def _also_valid(data: bytes, js_code: str) -> bool:
 def test_js_decoder_rejects_what_the_reference_rejects(tmp_path):
     """Fuzz mutants with repaired checksums: same accept/reject, same code (or, for an input with
     two defects, see _also_valid), same counts."""
-    fz = load_fuzzer()
+    fz = fuzzing
     seeds = fz.build_seeds()
     chooser = fz.RandomChooser(random.Random(1313))
     files, expected = [], {}

@@ -5,7 +5,7 @@
 // not say), ply=1 (load `src` as a PLY with Spark's own loader instead, for comparison),
 // capture=1. `window.spcViewer` holds the progress the browser tests read.
 
-import { SparkRenderer, SplatMesh } from '@sparkjsdev/spark';
+import * as spark from '@sparkjsdev/spark';
 import { configureDraco, rotatePositions, upRotation } from 'spcodec';
 import { browserDraco } from 'spcodec/draco-browser';
 import { loadSpc } from 'spcodec/spark';
@@ -43,7 +43,7 @@ async function main() {
   renderer.setSize(width, height);
   const scene = new THREE.Scene();
   const camera = new THREE.PerspectiveCamera(fov, width / height, 0.01, 1000);
-  scene.add(new SparkRenderer({ renderer }));
+  scene.add(new spark.SparkRenderer({ renderer }));
   configureDraco(browserDraco());
   const start = performance.now();
   let placed = false;
@@ -65,7 +65,7 @@ async function main() {
     const rotation = upRotation(params.get('up'));
     const group = new THREE.Group();
     group.quaternion.set(...rotation);
-    const mesh = new SplatMesh({ url: src });
+    const mesh = new spark.SplatMesh({ url: src });
     group.add(mesh);
     scene.add(group);
     await mesh.initialized;
@@ -76,7 +76,7 @@ async function main() {
     state.layersShown = 1;
   } else {
     await loadSpc(src, {
-      THREE, SplatMesh, parent: scene, up: params.get('up'),
+      THREE, spark, parent: scene, up: params.get('up'),
       onLayer: (layer) => {
         if (layer.cloud.count) place(rotatePositions(layer.cloud.positions, layer.rotation));
         state.gaussians += layer.cloud.count;

@@ -1,21 +1,22 @@
 // .spc in three.js apps with Spark (@sparkjsdev/spark), the most used three.js splat renderer.
 //
 //   import * as THREE from 'three';
-//   import { SparkRenderer, SplatMesh } from '@sparkjsdev/spark';
+//   import * as spark from '@sparkjsdev/spark';
 //   import { loadSpc } from 'spcodec/spark';
 //
-//   scene.add(new SparkRenderer({ renderer }));
-//   const { group } = await loadSpc('scene.spc', { THREE, SplatMesh, parent: scene,
+//   scene.add(new spark.SparkRenderer({ renderer }));
+//   const { group } = await loadSpc('scene.spc', { THREE, spark, parent: scene,
 //                                                  onLayer: (l) => console.log(l.index) });
 //
 // Each layer becomes a SplatMesh of its own, added (under one group turned upright, +Y up) as soon
 // as its bytes are in: Spark sorts the splats of every mesh together, so later layers refine the
-// picture the first ones started. A layer reaches Spark as the INRIA PLY `spcodec decode` writes
-// (Spark's own PLY reader), so every attribute, SH included, takes the path Spark's users rely on.
-// Reads an .spc or a .glb written by `spcodec embed`, by HTTP range requests. three.js and Spark
-// are passed in, so the app's own copies make the objects.
+// picture the first ones started. A layer reaches Spark as the decoded arrays, packed by Spark's
+// own encoders (`utils.setPackedSplat`, `utils.encodeSh{1,2,3}Rgb`) into a PackedSplats with
+// Spark's default encoding, the one its PLY reader gives the PLY `spcodec decode` writes (the
+// browser tests compare the two pictures): no PLY is made for Spark to parse again, and SH bands
+// 1..3 go along. Reads an .spc or a .glb written by `spcodec embed`, by HTTP range requests.
+// three.js and Spark are passed in, so the app's own copies make the objects.
 
-import { plyBytes } from '../src/ply.js';
 import { streamLayers } from '../src/stream.js';
 
 // three.js and Spark come in as arguments, not as imports: the types below say what the loader
@@ -33,40 +34,157 @@ import { streamLayers } from '../src/stream.js';
  */
 
 /**
- * What the loader uses of Spark's SplatMesh class (`fileType` is 'ply', Spark's
- * SplatFileType.PLY).
- * @typedef {new (options: {fileBytes: Uint8Array, fileType: any, fileName: string}) =>
- *   {name?: string, initialized: Promise<unknown>}} SplatMeshClass
+ * Spark's `SplatEncoding`: the ranges its packed form quantizes colour, log-scale and SH into.
+ * @typedef {{rgbMin?: number, rgbMax?: number, lnScaleMin?: number, lnScaleMax?: number,
+ *   sh1Max?: number, sh2Max?: number, sh3Max?: number, lodOpacity?: boolean}} SplatEncoding
  */
+
+/**
+ * Spark's encoder of one SH band of one splat into its packed words (`utils.encodeSh1Rgb`...):
+ * the band's coefficients coefficient-major, then R, G, B.
+ * @typedef {(words: Uint32Array, index: number, coefficients: Float32Array,
+ *   encoding?: SplatEncoding) => void} ShEncoder
+ */
+
+/**
+ * What the loader uses of Spark's `utils`: its packing of splats, in Spark's conventions (centre,
+ * linear scales, quaternion x y z w, opacity and colour in 0..1), and its texture capacity.
+ * @typedef {{
+ *   setPackedSplat(packed: Uint32Array, index: number, x: number, y: number, z: number,
+ *     scaleX: number, scaleY: number, scaleZ: number, quatX: number, quatY: number, quatZ: number,
+ *     quatW: number, opacity: number, r: number, g: number, b: number,
+ *     encoding?: SplatEncoding): void,
+ *   encodeSh1Rgb: ShEncoder, encodeSh2Rgb: ShEncoder, encodeSh3Rgb: ShEncoder,
+ *   getTextureSize(numSplats: number): {maxSplats: number},
+ * }} SparkUtils
+ */
+
+/**
+ * The options this loader gives Spark's `PackedSplats`: the packed words, the SH bands'
+ * words (`extra.sh1`.. `sh3`, as many as the scene's degree) and the encoding of both.
+ * @typedef {{packedArray: Uint32Array, numSplats: number,
+ *   extra: {sh1?: Uint32Array, sh2?: Uint32Array, sh3?: Uint32Array},
+ *   splatEncoding: SplatEncoding}} PackedSplatsInit
+ */
+
+/**
+ * What the loader uses of a SplatMesh.
+ * @typedef {{name?: string, initialized: Promise<unknown>}} SparkMesh
+ */
+
+/**
+ * What the loader uses of the Spark module (`import * as spark from '@sparkjsdev/spark'`).
+ * @template P, M
+ * @typedef {{
+ *   PackedSplats: new (options: PackedSplatsInit) => P,
+ *   SplatMesh: new (options: {packedSplats: P, splatEncoding: SplatEncoding}) => M,
+ *   utils: SparkUtils,
+ *   defines: {DEFAULT_SPLAT_ENCODING: SplatEncoding},
+ * }} SparkModule
+ */
+
+/** The degree-0 SH basis constant: colour = 0.5 + SH_C0 * f_dc, as 3DGS renderers take it. */
+const SH_C0 = 0.28209479177387814;
+
+/** Spark's SH bands: coefficients [first, end) of the K per channel, and words per splat. */
+const SH_BANDS = /** @type {const} */ ([
+  { key: 'sh1', first: 0, end: 3, words: 2, encoder: 'encodeSh1Rgb' },
+  { key: 'sh2', first: 3, end: 8, words: 4, encoder: 'encodeSh2Rgb' },
+  { key: 'sh3', first: 8, end: 15, words: 4, encoder: 'encodeSh3Rgb' },
+]);
+
+/**
+ * A decoded cloud in Spark's packed form, packed by Spark's own encoders.
+ *
+ * Spark takes scales linear (the decoder's are logs), opacity activated (the decoder's is a
+ * logit), colour as 0.5 + SH_C0 * f_dc, and quaternions x y z w (the decoder's are w x y z). The
+ * arrays are sized to Spark's texture capacity, which PackedSplats expects of a `packedArray`.
+ *
+ * @param {import('../src/decoder.js').Cloud} cloud
+ * @param {SparkUtils} utils  Spark's `utils`
+ * @param {SplatEncoding} encoding
+ * @returns {PackedSplatsInit}
+ */
+export function packCloud(cloud, utils, encoding) {
+  const n = cloud.count;
+  const { maxSplats } = utils.getTextureSize(n);
+  const packedArray = new Uint32Array(maxSplats * 4);
+  const { positions: p, scales: s, rotations: q, opacities: o, shDC: dc } = cloud;
+  for (let i = 0; i < n; i++) {
+    const i3 = 3 * i;
+    const i4 = 4 * i;
+    utils.setPackedSplat(packedArray, i, p[i3], p[i3 + 1], p[i3 + 2],
+      Math.exp(s[i3]), Math.exp(s[i3 + 1]), Math.exp(s[i3 + 2]),
+      q[i4 + 1], q[i4 + 2], q[i4 + 3], q[i4],
+      1 / (1 + Math.exp(-o[i])),
+      0.5 + SH_C0 * dc[i3], 0.5 + SH_C0 * dc[i3 + 1], 0.5 + SH_C0 * dc[i3 + 2], encoding);
+  }
+  return { packedArray, numSplats: n, extra: packSh(cloud, utils, maxSplats, encoding),
+    splatEncoding: encoding };
+}
+
+/**
+ * The cloud's SH bands 1..shDegree as Spark's `extra.sh1`..`sh3` words. The decoder's SH rest is
+ * already in the order Spark's encoders read (coefficient-major, then R, G, B), so each band of
+ * each splat is a view of it, not a copy.
+ *
+ * @param {import('../src/decoder.js').Cloud} cloud
+ * @param {SparkUtils} utils
+ * @param {number} capacity  splats the words are sized for (Spark's texture capacity)
+ * @param {SplatEncoding} encoding
+ * @returns {PackedSplatsInit['extra']}
+ */
+function packSh(cloud, utils, capacity, encoding) {
+  const k = (cloud.shDegree + 1) ** 2 - 1;
+  /** @type {PackedSplatsInit['extra']} */
+  const extra = {};
+  for (const band of SH_BANDS.slice(0, cloud.shDegree)) {
+    const words = new Uint32Array(capacity * band.words);
+    const encode = utils[band.encoder];
+    for (let i = 0; i < cloud.count; i++) {
+      encode(words, i, cloud.shRest.subarray(3 * (k * i + band.first), 3 * (k * i + band.end)),
+        encoding);
+    }
+    extra[band.key] = words;
+  }
+  return extra;
+}
 
 /**
  * Stream `url` into a THREE.Group of SplatMeshes, one per layer as it arrives.
  *
  * @template {ThreeModule} T
- * @template {SplatMeshClass} S
+ * @template P
+ * @template {SparkMesh} M
  * @param {string} url  an .spc, or a .glb written by `spcodec embed`
  * @param {object} options
  * @param {T} options.THREE  the three.js module
- * @param {S} options.SplatMesh  Spark's SplatMesh class
+ * @param {SparkModule<P, M>} options.spark  the Spark module (`import * as spark from
+ *   '@sparkjsdev/spark'`)
  * @param {ThreeParent|null} [options.parent]  an Object3D the group is added to at once (default:
  *   none)
  * @param {number} [options.maxLayer]  stop after this layer
  * @param {string} [options.up]  the up axis where the file does not store one (default -y)
- * @param {(layer: import('../src/stream.js').StreamedLayer & {mesh: InstanceType<S>|null}) => void}
+ * @param {(layer: import('../src/stream.js').StreamedLayer & {mesh: M|null}) => void}
  *   [options.onLayer]  once each layer's mesh is ready (`mesh`: null for an empty layer)
  * @param {(loaded: number, total: number|null) => void} [options.onProgress]
  * @param {typeof fetch} [options.fetchImpl]
- * @returns {Promise<{group: InstanceType<T['Group']>, meshes: InstanceType<S>[],
+ * @returns {Promise<{group: InstanceType<T['Group']>, meshes: M[],
  *   info: ReturnType<typeof import('../src/decoder.js').inspect>|null, layers: number,
  *   bytes: number}>}
  */
-export async function loadSpc(url, { THREE, SplatMesh, parent = null, maxLayer = Infinity,
+export async function loadSpc(url, { THREE, spark, parent = null, maxLayer = Infinity,
   up = null, onLayer = () => {}, onProgress = () => {}, fetchImpl = fetch,
-} = /** @type {any} */ ({})) {  // {}: THREE and SplatMesh are required, the check below says so
-  if (!THREE || !SplatMesh) throw new Error('loadSpc needs { THREE, SplatMesh } (three and @sparkjsdev/spark)');
+} = /** @type {any} */ ({})) {  // {}: THREE and spark are required, the check below says so
+  if (!THREE || !spark?.SplatMesh || !spark.PackedSplats || !spark.utils) {
+    throw new Error('loadSpc needs { THREE, spark }: three.js, and Spark as a module '
+      + "(`import * as spark from '@sparkjsdev/spark'`)");
+  }
+  const encoding = { ...spark.defines.DEFAULT_SPLAT_ENCODING };
   const group = /** @type {InstanceType<T['Group']>} */ (new THREE.Group());
   group.name = `spc ${url}`;
   parent?.add(group);
+  /** @type {M[]} */
   const meshes = [];
   const ready = [];
   const result = await streamLayers(url, {
@@ -77,8 +195,9 @@ export async function loadSpc(url, { THREE, SplatMesh, parent = null, maxLayer =
         onLayer({ ...layer, mesh: null });
         return;
       }
-      const mesh = /** @type {InstanceType<S>} */ (new SplatMesh({ fileBytes: plyBytes(layer.cloud),
-        fileType: 'ply', fileName: `layer-${layer.index}.ply` }));
+      const packedSplats = new spark.PackedSplats(packCloud(layer.cloud, spark.utils, encoding));
+      // SplatMesh sets the encoding it is given on the PackedSplats: the same one, explicitly
+      const mesh = new spark.SplatMesh({ packedSplats, splatEncoding: encoding });
       mesh.name = `layer ${layer.index}`;
       meshes.push(mesh);
       group.add(mesh);

@@ -1,5 +1,5 @@
 /**
- * Structure-aware mutations of valid files for the fuzz test, after bench/fuzz_decoder.py: every
+ * Structure-aware mutations of valid files for the fuzz test, after tests/fuzzing/ (Python): every
  * byte of a valid file is under a CRC, so random flips die at the CRC checks; these mutators edit
  * fields, payloads and section lists and then *repair the checksums*, so that the parsers behind
  * the CRCs see the damage.

@@ -12,11 +12,17 @@ Distortions of different attributes add (their errors are independent), so one L
 multiplier ``lam`` chooses every attribute's option at once: the one minimizing
 ``distortion + lam * bytes``. Sweeping ``lam`` traces the scene's rate-distortion curve, and a
 size target is the point of it whose predicted bytes fit (:meth:`PrecisionSearch.for_bytes`).
+
+Positions are options too (:func:`position_options`): each grid (bits over a layer's box) costs
+the bytes its real Draco write takes, and its distortion is rendered, not predicted: moving a
+Gaussian across its footprint's cut-off is a step the linearized renderer cannot see (it
+underestimates position error 2-20x, docs/LOG.md 17.1).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -25,10 +31,11 @@ from spcodec.attributes import PatchAttribute
 from spcodec.cloud import GaussianCloud
 from spcodec.decoder.layers import fill_patch_attributes
 from spcodec.imaging.sensitivity import Sensitivity
-from spcodec.sections import Codebook
+from spcodec.sections import Codebook, pack_positions
 
 from .config import AllocationConfig, EncoderConfig, PatchConfig
-from .patch import assign_attribute, coded_attributes, train_codebook
+from .morton import morton_codes
+from .patch import assign_attribute, coded_attributes, encode_positions, train_codebook
 
 LADDERS: dict[str, tuple[int, ...]] = {
     "SCALE": (3, 1), "ROTATION": (4, 2, 1), "OPACITY": (1,), "COLOR_DC": (3, 1),
@@ -53,12 +60,42 @@ class Option:
     def bytes_for(self, count: int) -> float:
         return count * self.index_bits / 8 + self.codebook_bytes
 
+    @property
+    def key(self) -> tuple:
+        return (self.attribute, self.entry_dim, self.entries)
+
+    def describe(self) -> dict:
+        return {"entry_dim": self.entry_dim, "entries": self.entries}
+
+
+@dataclass(frozen=True)
+class PositionOption:
+    """One grid for the patch's positions, measured on a real write and real renders."""
+
+    bits: int
+    bits_per_gaussian: float
+    """Stored bits per Gaussian of the positions' section (Draco, then zlib), all three axes."""
+    distortion: float
+    """Rendered image MSE the grid adds (both framings, weighted), in the units of
+    :class:`Option`'s."""
+    attribute: str = "POSITION"
+
+    def bytes_for(self, count: int) -> float:
+        return count * self.bits_per_gaussian / 8
+
+    @property
+    def key(self) -> tuple:
+        return (self.attribute, self.bits)
+
+    def describe(self) -> dict:
+        return {"bits": self.bits}
+
 
 @dataclass(frozen=True)
 class Allocation:
     """One option per attribute, and what they cost together for ``count`` Gaussians."""
 
-    options: dict[str, Option]
+    options: dict[str, Option | PositionOption]
     count: int
 
     @property
@@ -70,21 +107,24 @@ class Allocation:
         return sum(o.distortion for o in self.options.values())
 
     def patch_config(self, base: PatchConfig) -> PatchConfig:
-        """``base`` with these entry dimensions and, per attribute, these entry counts."""
+        """``base`` with these entry dimensions and, per attribute, these entry counts (and,
+        when positions were searched too, this grid)."""
+        codebooks = {a: o for a, o in self.options.items() if isinstance(o, Option)}
+        grid = self.options.get("POSITION")
         return dataclasses.replace(
-            base, entry_dims={a: o.entry_dim for a, o in self.options.items()},
-            entry_counts={a: o.entries for a, o in self.options.items()})
+            base, entry_dims={a: o.entry_dim for a, o in codebooks.items()},
+            entry_counts={a: o.entries for a, o in codebooks.items()},
+            position_bits=base.position_bits if grid is None else grid.bits)
 
     def describe(self) -> dict:
-        return {a: {"entry_dim": o.entry_dim, "entries": o.entries}
-                for a, o in self.options.items()}
+        return {a: o.describe() for a, o in self.options.items()}
 
 
 @dataclass
 class PrecisionSearch:
     """Every option of every attribute of a patch, measured once; allocations chosen from them."""
 
-    options: dict[str, list[Option]]
+    options: dict[str, list[Option | PositionOption]]
     count: int
     config: AllocationConfig = field(default_factory=AllocationConfig)
 
@@ -115,11 +155,21 @@ class PrecisionSearch:
                                        for c in config.entry_counts}, reverse=True)]
         return cls(options, n, config)
 
-    def matching(self, entry_dims: dict[str, int]) -> Allocation:
-        """The allocation of whole codebooks (the most entries) at ``entry_dims``: a preset's
-        precision, measured like every other option."""
+    def with_positions(self, options: list[PositionOption]) -> "PrecisionSearch":
+        """This search with the grids of :func:`position_options` among its choices."""
+        return dataclasses.replace(self, options={**self.options, "POSITION": list(options)})
+
+    def matching(self, entry_dims: dict[str, int], position_bits: int | None = None
+                 ) -> Allocation:
+        """The allocation of whole codebooks (the most entries) at ``entry_dims`` and the grid
+        of ``position_bits`` (the finest measured when not among them): a preset's precision,
+        measured like every other option."""
         chosen = {}
         for name, opts in self.options.items():
+            if name == "POSITION":
+                same = [o for o in opts if o.bits == position_bits]
+                chosen[name] = same[0] if same else max(opts, key=lambda o: o.bits)
+                continue
             dim = entry_dims.get(name, max(o.entry_dim for o in opts))
             same = [o for o in opts if o.entry_dim == dim] or opts
             chosen[name] = max(same, key=lambda o: o.entries)
@@ -137,8 +187,7 @@ class PrecisionSearch:
         seen, out = set(), []
         for lam in lams:
             allocation = self.at(float(lam) if np.isfinite(lam) else 1e30, count)
-            key = tuple(sorted((a, o.entry_dim, o.entries)
-                               for a, o in allocation.options.items()))
+            key = tuple(sorted(o.key for o in allocation.options.values()))
             if key not in seen:
                 seen.add(key)
                 out.append(allocation)
@@ -211,6 +260,37 @@ def _index_bits(indices: np.ndarray) -> float:
         bits -= float((p * np.log2(p)).sum())
     return bits
 
+
+
+def position_options(scene: GaussianCloud, rows: np.ndarray, config: EncoderConfig,
+                     allocation: AllocationConfig, device: str = "auto") -> list[PositionOption]:
+    """Every grid of ``allocation.position_bits`` for the patch Gaussians at ``rows`` of
+    ``scene``: the bytes of their positions written at it (one layer, Morton order, the
+    configured mode), and the MSE of ``scene`` rendered with them moved to it, against
+    ``scene`` as it is, at :func:`training_framings`. The writer's layers each span their own
+    box, which the real trial writes of a size target measure."""
+    from spcodec.imaging.render import GaussianParams, render_image, resolve_device
+
+    device = resolve_device(device)
+    settings = config.render_settings((0.0, 0.0, 0.0))
+    framings = training_framings(scene, config, allocation)
+    weight = allocation.framing_weights()
+    reference = {name: [render_image(GaussianParams.from_cloud(scene, device), c, settings)
+                        for c in cameras] for name, cameras in framings.items()}
+    rows = np.asarray(rows, np.int64)
+    order = rows[np.argsort(morton_codes(scene.means[rows].astype(np.float64)), kind="stable")]
+    out = []
+    for bits in allocation.position_bits:
+        stored = encode_positions(scene.means[order], config.patch.position_mode, bits)
+        moved = scene.subset(np.arange(len(scene)))
+        moved.means[order] = stored.decode()
+        params = GaussianParams.from_cloud(moved, device)
+        mse = sum(weight.get(name, 1.0) * float(np.mean(
+            [np.mean((render_image(params, c, settings) - r) ** 2)
+             for c, r in zip(framings[name], reference[name])])) for name in framings)
+        size = len(zlib.compress(pack_positions(stored)))
+        out.append(PositionOption(bits, 8.0 * size / max(len(rows), 1), mse))
+    return out
 
 
 def training_framings(cloud: GaussianCloud, config: EncoderConfig,

@@ -438,6 +438,10 @@ class AllocationConfig:
     probes: int = 1
     #: Weight of the close framing's MSE against the sampled framing's in the distortion.
     close_weight: float = 1.0
+    #: Grids (bits over a layer's box) the patch's positions may take; each is written and
+    #: rendered (encoder/allocation.py, position_options). Empty: positions stay at the
+    #: preset's grid.
+    position_bits: tuple[int, ...] = (12, 13, 14, 15, 16)
 
     def framing_weights(self) -> dict[str, float]:
         """Each framing's weight in the distortion, by the names the search's framings carry."""

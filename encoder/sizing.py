@@ -29,7 +29,13 @@ from spcodec.decoder import decode_layers
 from spcodec.errors import UsageError
 from spcodec.imaging.sensitivity import Sensitivity
 
-from .allocation import Allocation, PrecisionSearch, patch_sensitivity, training_framings
+from .allocation import (
+    Allocation,
+    PrecisionSearch,
+    patch_sensitivity,
+    position_options,
+    training_framings,
+)
 from .config import EncoderConfig, PatchConfig
 from .patch import PatchEncoder, PatchEncoding, Quantized
 from .prune import kept_count, prune_by_importance
@@ -108,8 +114,14 @@ class Sizing:
             self.sensitivity = patch_sensitivity(scene, self.config, config, self.device)
         framings = self.sensitivity if scene is patch else \
             {name: s.subset(rows) for name, s in self.sensitivity.items()}
-        return PrecisionSearch.measure(patch, framings, encoder.kmeans_weights(weights),
-                                       encoder.config, self.config.seed, config)
+        search = PrecisionSearch.measure(patch, framings, encoder.kmeans_weights(weights),
+                                         encoder.config, self.config.seed, config)
+        if not config.position_bits or encoder.config.position_mode not in ("draco", "quant16"):
+            return search
+        placed = rows if scene is not patch else np.arange(len(patch))
+        return search.with_positions(position_options(
+            scene, placed, dataclasses.replace(self.config, patch=encoder.config), config,
+            self.device))
 
 
 class FactorSizing(Sizing):
@@ -174,7 +186,7 @@ class SizeTarget(Sizing):
         predict)."""
         start = time.perf_counter()
         search = self.precision_search(patch, weights, encoder, rows)
-        preset = search.matching(encoder.config.entry_dims)
+        preset = search.matching(encoder.config.entry_dims, encoder.config.stored_position_bits)
         other = full_bytes - preset.bytes  # positions, headers, the sketch: what stays as it is
         aim = self.target * (1 - FIT_SLACK)
         chosen, written, ratio, tried, data = None, None, 1.0, None, None
@@ -251,7 +263,8 @@ class SizeTarget(Sizing):
         sections = writer.write_file(encoding).layout.section_bytes()
         sketch_bytes = sum(n for kind, n in sections.items() if kind.startswith("SKETCH"))
         patch_count = max(sum(len(layer) for layer in encoding.layers), 1)
-        per_gaussian = (self.chosen.bytes + sections.get("PATCH_POSITIONS", 0)) / patch_count
+        positions = 0 if "POSITION" in self.chosen.options else sections.get("PATCH_POSITIONS", 0)
+        per_gaussian = (self.chosen.bytes + positions) / patch_count
         saved = len(sources) * per_gaussian - sketch_bytes
         slope = self.search.slope_at(self.chosen)
         decision = {"sketch_distortion": error, "bytes_saved": round(saved),

@@ -115,7 +115,7 @@ def test_a_size_above_the_presets_keeps_every_gaussian_and_buys_precision(scene)
     precision = middle.stats["rate"]["precision"]
     assert "options" in precision, precision
     finer = [a for a, o in precision["options"].items()
-             if o["entry_dim"] < balanced_dims().get(a, 0)]
+             if "entry_dim" in o and o["entry_dim"] < balanced_dims().get(a, 0)]
     assert finer, precision
 
     def error(result) -> float:
@@ -160,3 +160,23 @@ def test_transparent_refuses_a_size_it_would_meet_only_by_dropping_gaussians(sce
         encode(scene, _config("transparent", int(len(transparent.data) * 0.8)))
     kept = encode(scene, _config("transparent", len(transparent.data) + 1000))
     assert len(spcodec.decode(kept.data)) == len(scene)
+
+
+def test_position_grids_cost_fewer_bytes_and_more_picture_as_they_coarsen(scene):
+    """position_options writes and renders every grid: coarser grids store fewer bits per
+    Gaussian and render farther from the scene; an allocation that takes one sets the patch's
+    position_bits, and matching() finds the preset's grid among them."""
+    from spcodec.encoder.allocation import Allocation, position_options
+
+    config = EncoderConfig(patch=FAST)
+    small = dataclasses.replace(SMALL, position_bits=(8, 11, 16))
+    grids = position_options(scene, np.arange(len(scene)), config, small, device="cpu")
+    assert [g.bits for g in grids] == [8, 11, 16]
+    assert grids[0].bits_per_gaussian < grids[1].bits_per_gaussian < grids[2].bits_per_gaussian
+    assert grids[0].distortion > grids[1].distortion > grids[2].distortion >= 0.0
+    allocation = Allocation({"POSITION": grids[1]}, len(scene))
+    assert allocation.patch_config(FAST).position_bits == 11
+    assert allocation.bytes == pytest.approx(grids[1].bits_per_gaussian * len(scene) / 8)
+    with_grids = PrecisionSearch({"POSITION": grids}, len(scene), small)
+    assert with_grids.matching({}, 11).options["POSITION"].bits == 11
+    assert with_grids.matching({}, 14).options["POSITION"].bits == 16  # not measured: the finest

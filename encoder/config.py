@@ -32,15 +32,10 @@ class CategorizeConfig:
 
     The paper gives no numeric thresholds. The defaults sit where real captures cluster a good
     share of their Gaussians into many mid-sized clusters without percolating into one giant
-    component, which the polynomial models downstream could not fit. On fourth_st (131k) they
-    cluster 32.6 % into 280 clusters, the largest 4.3 % of the scene; one step tighter on any
-    threshold (eps_s_factor 1.0, eps_d 0.025, eps_c 0.05, min_samples 10) drops the clustered
-    share to 10-15 %, one step looser (2.0, 0.1, 0.15, 3) grows the largest cluster to 10-31 %,
-    and all three eps loosened merge 81 % of the scene into a single cluster. Biker reacts the
-    same way, more mildly (54 % clustered, largest 2.9 %). Synthetic curves (make_scene, seeds
-    0-2) are recovered with precision >= 0.999 and recall >= 0.96 at every one of those settings,
-    so the synthetic scenes do not constrain the choice; the real ones do. Reproduce with
-    ``python bench/bench_categorize.py --sweep``.
+    component, which the polynomial models downstream could not fit; one step tighter or looser
+    on any threshold does one or the other on fourth_st and biker, while synthetic curves are
+    recovered at every such setting, so only the real scenes constrain the choice (DECISIONS
+    D-1). Reproduce with ``python bench/bench_categorize.py --sweep``.
     """
 
     eps_s: float | None = None
@@ -77,8 +72,8 @@ class CategorizeConfig:
     min_cluster_size: int = 20
     """Clusters with fewer members (cores plus borders) become noise (count). A sketch cluster
     pays for a Draco stream and polynomial models (a linear model of the 11 base outputs alone is
-    44 coefficients), which a handful of Gaussians cannot amortize; on fourth_st, 5 instead of 20
-    keeps 6x more clusters for only 9 percentage points more clustered Gaussians."""
+    44 coefficients), which a handful of Gaussians cannot amortize: a smaller minimum multiplies
+    the clusters for few more clustered Gaussians (DECISIONS D-2)."""
     chunk_size: int = 8192
     """Query points per chunk of the neighbour search (count). Sets the working memory, about
     100 bytes per candidate pair (some 30 MB at the default eps_s); results do not depend on it.
@@ -118,11 +113,10 @@ class RefineConfig:
     0.25). Unitless."""
     tau_max: float = 0.1
     """Threshold on MSE_combined (unitless: squared error / scene robust variance, averaged over the
-    four attributes): 0.1 ~ an RMS error of 32% of each attribute's scene-wide spread. The paper
-    gives no value. Real captures are noisy at the finest scale (on fourth_st a Gaussian's nearest
-    neighbour differs in log scale / rotation by ~0.9 / 0.5 of the scene variance), so the sketch
-    share depends strongly on tau (bench/bench_refine.py sweeps it); 0.1 is a fidelity-first
-    default for the orchestrator to revisit with a rendering measurement."""
+    four attributes): 0.1 ~ an RMS error of a third of each attribute's scene-wide spread. The
+    paper gives no value. Real captures are noisy at the finest scale, so the sketch share depends
+    strongly on tau (bench/bench_refine.py sweeps it); 0.1 is a fidelity-first default
+    (DECISIONS D-3)."""
 
     # ---- degree search
     min_degree: int = 0
@@ -135,9 +129,8 @@ class RefineConfig:
     least ``degree_lambda`` per coefficient byte per Gaussian. Unit: normalized MSE per
     (byte/Gaussian); e.g. in a 1000-point cluster one more colour degree (~60 bytes) must buy 6e-4
     of weighted error. tau_max is still met whenever possible (lambda is lowered for that
-    cluster), so lambda only decides how far below tau to go. On biker, 2e-3 / 1e-2 / 5e-2 gave
-    5.9 / 4.5 / 3.2 coefficient bytes per sketch Gaussian at about the same sketch share and
-    median MSE_combined 0.060 / 0.067 / 0.079 (Draco positions cost ~3-4 B): 1e-2 is the middle."""
+    cluster), so lambda only decides how far below tau to go; 1e-2 is the middle of the trade
+    measured on biker (DECISIONS D-4)."""
     min_points_per_coefficient: float = 3.0
     """A degree is admissible only when n >= this * M(d): fewer points would make the model cost
     more than ~1 byte per output per Gaussian (a codebook index) and merely interpolate."""
@@ -151,10 +144,9 @@ class RefineConfig:
     sh_rest_degree: int | None = 1
     """Highest degree of the optional SH-rest model (selected with the same cost, capped here and
     by max_degree); None = no model, so sketch Gaussians decode with zero higher SH bands (the
-    paper's choice). Measured on fourth_st (tau_max 0.4, 12k sketch Gaussians, renders against the
-    original at 8 views): no model 37.47 dB; degree <= 0 37.82 dB for +10 KB; <= 1 38.00 dB for
-    +37 KB; <= 2 38.11 dB for +70 KB. Higher bands are not smooth in position, but a per-cluster
-    constant or plane recovers half the loss at a better rate than any codebook knob, so <= 1."""
+    paper's choice). Higher bands are not smooth in position, but a per-cluster constant or plane
+    recovers half the loss of dropping them at a better rate than any codebook knob, so <= 1
+    (DECISIONS D-5)."""
     sh_rest_weight: float = 0.25
     """Weight of the SH-rest normalized MSE in its own degree cost (it is not part of
     MSE_combined). 0.25 puts it on the footing of each of the four combined attributes."""
@@ -199,16 +191,14 @@ class RefineConfig:
     iqr_min_spread: float = 0.2
     """Floor on the IQR the fences are built from, in log-scale units (0.2 = a factor 1.22). In a
     cluster modelled almost perfectly the residual IQR is ~0 and plain fences would flag Gaussians
-    whose size is off by 1%; with the floor and k = 1.5 nothing within ~0.3 (35% in size) of the
-    quartiles is ever flagged. On make_scene curves without the floor, 10-30% of well-modelled
-    Gaussians were flagged."""
+    whose size is barely off; with the floor and k = 1.5 nothing within ~0.3 in log scale of the
+    quartiles is ever flagged (DECISIONS D-6)."""
     iqr_quantity: str = "residual"
     """What the fences are put on, per axis: 'residual' = decoded minus original log scale (how
     wrong the decoded size is), 'decoded' = the decoded log scale itself (the paper's literal
-    wording). Default 'residual': on biker the 'decoded' rule moved 8.5% of sketch Gaussians whose
-    scale error was no larger than the rest's (a smooth model's extremes are merely the cluster's
-    periphery), while the paper's stated aim is to drop *badly modelled* (too long / too thin)
-    Gaussians, which is what the residual rule selects, injected outliers included."""
+    wording). Default 'residual': a smooth model's extremes are merely the cluster's periphery,
+    while the paper's stated aim is to drop *badly modelled* (too long / too thin) Gaussians,
+    which is what the residual rule selects, injected outliers included (DECISIONS D-6)."""
 
     def __post_init__(self) -> None:
         if len(self.weights) != 4 or min(self.weights) < 0:
@@ -244,7 +234,7 @@ class SketchConfig:
     #: Draco compression level (0..10; 10 is the smallest output, still fast for point clouds).
     draco_compression_level: int = 10
     #: "run": all clusters share one order-preserving Draco blob on a scene-wide grid (one header
-    #: instead of one per cluster: about half the size on clusters of a few dozen Gaussians);
+    #: instead of one per cluster, DECISIONS D-7);
     #: "per_cluster": one kd-tree blob per cluster (best for clusters of thousands).
     grouping: str = "run"
     #: A cluster whose models, refitted on decoded positions, exceed tau_max by more than this
@@ -265,50 +255,39 @@ class SketchConfig:
 LAYER_RATIO = 1.5
 """Each patch layer of ``--patch-layers N`` (other than the default 3) holds this many times the
 Gaussians of the one before: a viewer refines in steps of equal relative size, and the first of
-6 layers holds 4.8 % of the patch, of 8 layers 2 %."""
+6 layers holds about a twentieth of the patch, of 8 layers a fiftieth."""
 
 
 RETRAINED_PATCH_LAYERS = 6
 """Patch layers of a retrained encode (``--nested`` or not) unless ``--patch-layers`` says
-otherwise; ``PatchConfig.layers`` (3) stays the no-retrain default. A streaming viewer gets a
-prefix at 10, 15, 22, 32, 46 and 68 % of the bytes instead of 10, 17 and 33 %, each about as good
-as the three-layer file's prefix near its size, and the full file keeps its picture: guitar at a
-quarter of SPZ's bytes, PlayCanvas orbit / close 42.68 / 37.07 dB at 360,070 B against 42.71 /
-37.03 at 355,651 B (a Draco cloud and a zlib stream more per layer; docs/RESULTS.md 15.2, 15.3)."""
+otherwise; ``PatchConfig.layers`` (3) stays the no-retrain default. A streaming viewer gets
+twice the refinement steps, each prefix about as good as the three-layer file's prefix near its
+size, and the full file keeps its picture (DECISIONS D-23)."""
 
 
 RETRAINED_MAX_SKETCH_SHARE = 0.025
 """``EncoderConfig.max_sketch_share`` of a retrained encode (``preset_config(..., retrain=True)``).
 Retraining fills the room with patch Gaussians that serve the picture better than the sketch's
-polynomial models, and a small sketch moves every layer prefix earlier: guitar at a quarter of
-SPZ's bytes, 3000 steps, PlayCanvas orbit / close, the file 42.93 / 37.23 dB against 42.68 /
-37.07 with a tenth, the first picture at 2.6 % of the bytes instead of 9.5 %, each later prefix
-15-24 kB earlier at the same picture; donut +0.21 / +0.23 dB, biker -0.04 / +0.05, kacytran
-0 / -0.48 (its fortieth holds no cluster; docs/RESULTS.md 15.4, 13.13). ``--no-retrain`` keeps
-``max_sketch_share``'s tenth."""
+polynomial models, and a small sketch moves every layer prefix earlier (DECISIONS D-24).
+``--no-retrain`` keeps ``max_sketch_share``'s tenth."""
 
 
 VIEWER_BLUR_VARIANCE = 0.075
 """The low-pass the PlayCanvas engine draws with (it adds 0.3 in half-pixel units: 0.075 px^2,
 ``../shared/tools/viewer-render/README.md``), and the encoder's default. A larger one (INRIA's 0.3)
 hides in training exactly the fine texture that pruning and distillation lose, which a viewer then
-shows: at a quarter of SPZ's bytes, 1000 steps, PlayCanvas orbit / close-up went from 0.3 to 0.075
-px^2 guitar +0.1 / +0.8 dB, fourth_st +0.9 / +0.9, donut +0.2 / +0.1 (docs/RESULTS.md 13.9)."""
+shows (DECISIONS D-19)."""
 
 DATASET_BLUR_VARIANCE = 0.3
 """The low-pass of an encode retraining against a dataset's images: INRIA's, the one a model
-trained on those images was made with and that test PSNR renders with. lego (nerf_synthetic,
-66,731 Gaussians trained at 0.3): the model itself scores 31.59 dB on its test images at 0.3 and
-26.47 at the viewer's 0.075; its patch pruned to a quarter and retrained at 0.3 scores 31.64 dB,
-retrained at 0.075 27.24 (both judged at 0.3; docs/RESULTS.md 13.18). The file's report judges
-at the low-pass it trained with, so the two never disagree."""
+trained on those images was made with and that test PSNR renders with; retrained at the viewer's
+low-pass, lego's file scores far lower on its test images (DECISIONS D-20). The file's report
+judges at the low-pass it trained with, so the two never disagree."""
 
 TARGET_GROUPS_PER_ENTRY = 32
 """``PatchConfig.groups_per_entry`` under ``--target-size``, where bytes the codebooks leave go to
-more Gaussians. kacytran (SH 3) at a quarter of SPZ's bytes, 1000 steps, PlayCanvas orbit / close:
-36.76 / 33.43 dB at 47,016 B with 256 entries per codebook (25 kB of codebooks, 1,173 patch
-Gaussians), 38.07 / 35.42 dB at 43,731 B with this rule (7.8 kB, 2,336 Gaussians); docs/RESULTS.md
-13.8. Scenes whose patch keeps more than 8,192 Gaussians keep 256 entries for every attribute."""
+more Gaussians: on a small patch the rule doubles the Gaussians a target holds (DECISIONS D-22).
+Scenes whose patch keeps more than 8,192 Gaussians keep 256 entries for every attribute."""
 
 
 def codebook_entries(config: "PatchConfig", gaussians: int, groups_per_gaussian: int) -> int:
@@ -338,9 +317,8 @@ RETRAINED_POSITION_BITS = 12
 more where outliers stretch the box (``encoder.patch.retrained_position_bits``). Every shared
 scene's box spans about 1,000 pixels of a viewer's close-up (PlayCanvas at half the orbit distance,
 512 px), so 12 bits place a Gaussian within a quarter of a pixel there, and training learns the
-grid. At 16 bits positions were 30-40 % of a patch at a quarter of SPZ's size (32-40 bits per
-Gaussian); at 12 bits 19-27, and the bytes saved keep 10-18 % more Gaussians: up to +1.3 dB
-(donut) in PlayCanvas, on no shared scene a loss at either framing (docs/RESULTS.md 13.10)."""
+grid; the bytes saved keep more Gaussians, with no loss at either framing on any shared scene
+(DECISIONS D-21)."""
 
 
 @dataclass
@@ -351,25 +329,23 @@ class PatchConfig:
     codebook_size: int = 256
     #: Fewer entries for few Gaussians: a codebook gets at most one entry per this many of the
     #: groups it codes (and at least ``min_codebook_entries``); None: always ``codebook_size``.
-    #: At a small target the fixed 256 entries cost more than the Gaussians they serve: kacytran
-    #: (SH 3) at a quarter of SPZ's bytes kept 1,173 patch Gaussians beside 25 kB of codebooks,
-    #: 52 % of the file. See :func:`codebook_entries`.
+    #: At a small target the fixed 256 entries cost more than the Gaussians they serve
+    #: (DECISIONS D-22). See :func:`codebook_entries`.
     groups_per_entry: float | None = None
     #: The floor of the rule above.
     min_codebook_entries: int = 16
     #: Apply the rule above as if this many Gaussians were quantized (None: as many as are).
     #: Rate control fixes it at its planned count before retraining, so the codebooks it sized
     #: the file with are the ones written even when the retrained patch ends with fewer
-    #: Gaussians (without it kacytran's SPZ/4 file ended 6.2 % under its target).
+    #: Gaussians (without it a small file lands well under its target: DECISIONS D-22).
     codebooks_sized_for: int | None = None
     #: Entry dimension per attribute: the attribute's components are split into groups of this
     #: size, one index per group (the format allows any divisor of the width, from scalar to full
     #: vector quantization). The defaults (preset "balanced") quantize scale per axis and rotation
     #: per pair of components: without retraining, whole-vector codebooks of 256 entries for these
-    #: geometric attributes cost 5-12 dB on scenes of many small Gaussians (Mip-Splatting donut:
-    #: 28.5 dB with vectors, 40.7 dB per axis/pair). Colour DC is a vector; each SH band is one
-    #: vector (3 indices for SH degree 3), which on fourth_st saves 27 % for 7 dB less than one
-    #: index per RGB coefficient (15 indices). See encoder/presets.py for the measured table.
+    #: geometric attributes cost most on scenes of many small Gaussians. Colour DC is a vector;
+    #: each SH band is one vector (3 indices for SH degree 3 instead of 15 for one index per RGB
+    #: coefficient), much smaller for a moderate loss (DECISIONS D-8; encoder/presets.py).
     entry_dims: dict[str, int] = field(default_factory=lambda: {
         "SCALE": 1, "ROTATION": 2, "OPACITY": 1, "COLOR_DC": 3,
         "SH_BAND_1": 9, "SH_BAND_2": 15, "SH_BAND_3": 21,
@@ -377,8 +353,8 @@ class PatchConfig:
     #: Entries per codebook for some attributes (by name), at most ``codebook_size`` and the
     #: rule above; the rate-distortion search (encoder/allocation.py) sets them. None: none.
     entry_counts: dict[str, int] | None = None
-    #: How positions are stored: "draco" (order-preserving Draco, the smallest), "quant16" (16-bit
-    #: fixed point, delta-coded), "float16" (the paper's) or "float32" (lossless).
+    #: How positions are stored: "draco" (order-preserving Draco, the smallest: DECISIONS D-9),
+    #: "quant16" (16-bit fixed point, delta-coded), "float16" (the paper's) or "float32" (lossless).
     position_mode: str = "draco"
     #: For draco and quant16: bits of precision over the layer's bounding box (quant16: <= 16).
     #: None: :data:`DEFAULT_POSITION_BITS`, except for a retrained patch, where the encoder takes
@@ -387,15 +363,15 @@ class PatchConfig:
     #: Number of patch layers (>= 1).
     layers: int = 3
     #: Share of the patch Gaussians in each layer, most important first (renormalized). The first
-    #: layer (7 %, with the codebooks) completes within 10 % of the file, a streaming viewer's
-    #: first picture when there is no sketch; the first two (23.5 %) end before 30 % of the file
-    #: with a sketch layer of 6 % (guitar). A fourth layer costs about 1 % in size (each layer
-    #: codes its positions on its own): docs/RESULTS.md, section 7. Other layer counts on the
-    #: command line take :func:`geometric_fractions` (each layer 1.5 times the one before).
+    #: layer (with the codebooks) completes within a tenth of the file, a streaming viewer's
+    #: first picture when there is no sketch, and the first two end before 30 percent of it with
+    #: guitar's sketch; each further layer codes its positions on its own (DECISIONS D-10). Other
+    #: layer counts on the command line take :func:`geometric_fractions` (each layer 1.5 times
+    #: the one before).
     layer_fractions: tuple[float, ...] = (0.07, 0.165, 0.765)
     #: Codebook trainer (encoder/kmeans.py): "sampled" (exact in one dimension, weight-proportional
     #: samples for vectors) or "exhaustive" (the previous scikit-learn k-means++ on uniform
-    #: samples: 5-20x slower for codebooks as good; kept for comparisons).
+    #: samples: several times slower for codebooks as good, DECISIONS D-11; kept for comparisons).
     kmeans: str = "sampled"
     #: k-means samples per vector codebook (sampled: draws; exhaustive: at most this many groups).
     kmeans_samples: int = 65_536
@@ -408,7 +384,8 @@ class PatchConfig:
     kmeans_weight_floor: float = 0.1
     #: What ranks Gaussians into layers and weights k-means: "blend", the blending weight each
     #: accumulates over ``importance_views`` sampled training views (imaging/importance.py), or
-    #: "footprint", opacity times footprint area (no rendering, but blind to occlusion).
+    #: "footprint", opacity times footprint area (no rendering, but blind to occlusion;
+    #: DECISIONS D-10).
     importance: str = "blend"
     #: Views (training split, never eval's) and their (width, height) for "blend".
     importance_views: int = 6
@@ -459,42 +436,38 @@ class RetrainConfig:
     patch_downsample: float = 4.0
     #: How survivors are chosen: "importance" (largest blend weight over the training views),
     #: "sampled" (random in proportion to it) or "uniform" (random, the paper's). Importance
-    #: stays the default: sampled won 1.7 / 1.9 dB on donut at SPZ/8, tied on guitar, fourth_st
-    #: and biker and lost up to 0.9 on kacytran; uniform lost 3.2 on kacytran (RESULTS 13.19).
+    #: stays the default: each alternative won on one scene and lost on another (DECISIONS D-13).
     prune: PruneMethod = "importance"
-    #: Optimizer steps of the retraining, one training view each.
+    #: Optimizer steps of the retraining, one training view each (DECISIONS D-14).
     iterations: int = 3000
     #: Adam rates per attribute (the 3DGS defaults; positions scaled by the camera extent).
     rates: LearningRates = field(default_factory=LearningRates)
     #: Distillation: how many training views are sampled around the original, and their side.
     #: 96 whole views and 96 close crops rather than 48 and 48: with 48 of each, 3000 steps
-    #: learn the views rather than the scene (biker at SPZ/4 scored 0.2-0.3 dB less in
-    #: PlayCanvas than at 1000 steps); twice the views gained biker +0.4 / +0.9 dB and fourth_st
-    #: +0.2 / +0.3 (orbit / close) for 0.5-1.5 more minutes of target rendering, the step cost
-    #: unchanged (docs/RESULTS.md 13.11).
+    #: learn the views rather than the scene; twice the views cost only more target rendering,
+    #: the step cost unchanged (DECISIONS D-15).
     views: int = 96
     resolution: int = 400
     #: Distillation close-ups: this many more training views from ``close_distance`` times as
     #: far (0.5: half way to the scene), ``close_resolution`` pixels across, each trained as a
     #: crop of ``close_crop`` pixels around a point of the scene (a crop costs its pixels, not
-    #: the frame's). Whole-scene views leave fine texture below a pixel: trained on them alone,
-    #: guitar's close-up lost 2.2 dB more in PlayCanvas (docs/RESULTS.md section 13). 0: none.
+    #: the frame's). Whole-scene views leave fine texture below a pixel, which a viewer's
+    #: close-up shows (DECISIONS D-16). 0: none.
     close_views: int = 96
     close_distance: float = 0.5
     #: Close frames of 400 pixels (at the 50-degree field of view), cut into 256-pixel crops:
     #: at 800 each crop framed a third of the view's width and its pixels were 0.64 of a pixel
-    #: of a viewer's 512-pixel close-up, detail no framing shows; at 512 every scene at SPZ/4
-    #: gained at both framings (biker +1.8 / +1.8 dB in PlayCanvas), and at 400 (two thirds
-    #: of the width, pixels between the viewer's orbit and close-up) all five gained again
-    #: (+0.2 to +0.9 / +0.05 to +0.5 dB over 512): docs/RESULTS.md 13.15. A crop costs the
-    #: same pixels at any of them.
+    #: of a viewer's 512-pixel close-up, detail no framing shows; at 400 a crop frames two thirds
+    #: of the width, at pixels between the viewer's orbit and close-up (DECISIONS D-17). A crop
+    #: costs the same pixels at any of them.
     close_resolution: int = 400
     close_crop: int = 256
     #: Dataset mode: image downscale factor, and at most this many training views (None: all of
     #: the training split).
     downscale: int = 1
     max_views: int | None = None
-    #: Steps of the quantization-aware finish (0: off) and when its one re-assignment happens.
+    #: Steps of the quantization-aware finish (0: off) and when its one re-assignment happens
+    #: (DECISIONS D-14).
     finish_iterations: int = 600
     reassign_at: float = 0.5
     #: Training views (evenly spread) over which blend weights rank Gaussians for pruning/layers.
@@ -508,19 +481,17 @@ class RetrainConfig:
     #: Steps between moves of the snapped entries to their groups' weighted centroids.
     snap_refresh_every: int = 100
     #: Snap only when quantizing at ``snap_start`` costs the training views at least this many
-    #: dB; below it, training goes on freely and the finish tunes the codebooks. Snapping gained
-    #: 0.3 dB in PlayCanvas on fourth_st (SH 3, 4.4 dB lost to codebooks) and lost 0.3 dB on
-    #: guitar (SH 0, 1.4 dB lost): docs/RESULTS.md section 13.
+    #: dB; below it, training goes on freely and the finish tunes the codebooks. Snapping
+    #: pays where the codebooks cost much (fourth_st, SH 3) and loses where they cost little
+    #: (guitar, SH 0): DECISIONS D-18.
     snap_min_loss: float = 2.5
     #: Nested retraining (encoder/nested.py): the patch layers are fixed before training and
     #: every step trains one layer prefix (sketch and layers 1..k), the whole file at
     #: ``nested_full_share`` of the steps, so that every prefix is a trained scene for a
     #: progressive viewer (plain retraining optimizes the full file only). Snapping is off.
     nested: bool = False
-    #: Three quarters is the knee of guitar's trade-off at 3000 steps (docs/RESULTS.md 15.2):
-    #: against a half the full file gains 0.9 dB in PlayCanvas for 0.2-1.2 dB of the prefixes;
-    #: at seven eighths the full file is within 0.5 dB of a plain file of its size, but its
-    #: prefixes are no better than the plain file's own at the same bytes.
+    #: Three quarters is the knee of guitar's trade-off at 3000 steps between the full file and
+    #: its prefixes (DECISIONS D-25).
     nested_full_share: float = 0.75
 
     def __post_init__(self) -> None:
@@ -568,7 +539,8 @@ class EncoderConfig:
     n_jobs: int | None = None
     #: False encodes every Gaussian as patch (the baseline without structure).
     use_sketch: bool = True
-    #: Section codec: "zlib" (the paper's; every decoder has it) or "zstd" (optional, faster).
+    #: Section codec: "zlib" (the paper's; every decoder has it) or "zstd" (optional;
+    #: DECISIONS D-12).
     codec: str = "zlib"
     #: Wrap the file in gzip (the paper's final step; a few percent smaller).
     gzip: bool = False
@@ -586,7 +558,7 @@ class EncoderConfig:
     #: Prune and retrain the patch (None: the no-retrain encoder). See :mod:`.retrain`.
     retrain: "RetrainConfig | None" = None
     #: Rate control: a file of at most this many bytes (within 1 % under it where the patch
-    #: allows, encoder/ratecontrol.py) by choosing how many patch
+    #: allows, encoder/ratecontrol.py, DECISIONS D-26) by choosing how many patch
     #: Gaussians survive pruning (None: the size follows from the settings). ``--target-size``
     #: also sets ``patch.groups_per_entry`` to :data:`TARGET_GROUPS_PER_ENTRY`;
     #: ``encoder.presets.sized`` sets both for a library caller.
@@ -595,7 +567,8 @@ class EncoderConfig:
     #: their distance) reaches this many dB, again by choosing how many patch Gaussians survive
     #: (encoder/qualitycontrol.py; None: off). Exclusive with ``target_size``.
     target_psnr: float | None = None
-    #: The sketch layer, a streaming viewer's first picture, ends within this share of the file:
+    #: The sketch layer, a streaming viewer's first picture, ends within this share of the file
+    #: (DECISIONS D-10):
     #: when it would not, the sketch clusters of least importance per Gaussian go to the patch
     #: (None: no limit). With retraining the share is judged before training, on the file the
     #: prune factor makes; with ``target_size``, of the target (left alone, a small target was

@@ -143,7 +143,7 @@ class PrecisionSearch:
         sample = patch.subset(rows)
         scale = n / max(len(rows), 1)
         framing = {name: s.subset(rows) for name, s in sensitivity.items()}
-        weight = config.framing_weights()
+        weight = config.linearized_weights()
         sample_weights = None if weights is None else np.asarray(weights)[rows]
         options: dict[str, list[Option]] = {}
         for index, (attr, coded) in enumerate(coded_attributes(sample).items()):

@@ -420,9 +420,20 @@ class AllocationConfig:
     #: preset's grid.
     position_bits: tuple[int, ...] = (12, 13, 14, 15, 16)
 
+    #: Factor on the linearized renderer's predictions (codebook options, the sketch's error),
+    #: which put them on the scale of rendered MSE, the scale position options are measured
+    #: on: it underestimated codebook options' rendered MSE 1.5x on average on guitar and
+    #: fourth_st (docs/LOG.md 17.1).
+    linearized_gain: float = 1.5
+
     def framing_weights(self) -> dict[str, float]:
         """Each framing's weight in the distortion, by the names the search's framings carry."""
         return {"orbit": 1.0, "close": self.close_weight}
+
+    def linearized_weights(self) -> dict[str, float]:
+        """:meth:`framing_weights` for predictions of the linearized renderer, times
+        :attr:`linearized_gain`."""
+        return {name: w * self.linearized_gain for name, w in self.framing_weights().items()}
 
     def to_json(self) -> dict:
         return dataclasses.asdict(self)

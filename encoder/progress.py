@@ -141,6 +141,16 @@ class StageReporter:
         a line of its own (not glued to a progress bar)."""
         if self.current is not None:
             self.current.abandon()
+def precision_line(options: dict) -> str:
+    """The precision search's choice in a few words: each codebook's entry dimension x entries,
+    and the positions' grid when it was searched too."""
+    codebooks = ", ".join(f"{name.lower()} {o['entry_dim']}x{o['entries']}"
+                          for name, o in options.items() if "entry_dim" in o)
+    grid = options.get("POSITION")
+    return f"codebooks (entry dimension x entries): {codebooks}" + (
+        f"; positions at {grid['bits']} bits" if grid else "")
+
+
 def print_summary(stats: dict, stream: TextIO | None = None) -> None:
     """The human summary of an encode: counts, bytes per section, ratios, sketch errors (to
     ``stream``, standard output by default). Bits per Gaussian count the Gaussians the file
@@ -184,12 +194,16 @@ def print_summary(stats: dict, stream: TextIO | None = None) -> None:
             print_(f"  note: {rate['note']}")
         options = rate.get("precision", {}).get("options")
         if options:  # the precision search kept every Gaussian (encoder/allocation.py)
-            print_("  every Gaussian kept; codebooks (entry dimension x entries): " + ", ".join(
-                f"{name.lower()} {o['entry_dim']}x{o['entries']}" for name, o in options.items())
-                + (", the sketch dropped for precision"
+            print_("  every Gaussian kept; " + precision_line(options)
+                   + (", the sketch dropped for precision"
                    if stats.get("sketch", {}).get("dropped_for_precision") else ""))
     aim = stats.get("quality_target")
-    if aim:
+    if aim and "precision" in aim:
+        chosen = aim["precision"]
+        print_(f"  target {aim['target_psnr']:g} dB close up: point {chosen['chosen_point'] + 1} of "
+               f"{chosen['curve_points']} of the precision curve reaches {chosen['psnr']:.2f} dB "
+               f"with every Gaussian kept; {precision_line(chosen['options'])}")
+    if aim and "count_without_retraining" in aim:
         line = (f"  target {aim['target_psnr']:g} dB close up: {aim['count_without_retraining']:,} "
                 f"patch Gaussians reach {aim['psnr_without_retraining']:.2f} dB without "
                 "retraining")

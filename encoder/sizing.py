@@ -257,7 +257,7 @@ class SizeTarget(Sizing):
             return False
         sources = np.concatenate(sketch.sources)
         decoded = writer.decoded_sketch()
-        weight = self.config.allocation.framing_weights()
+        weight = self.config.allocation.linearized_weights()
         error = sum(weight.get(name, 1.0) * float(s.subset(sources).mse(
             cloud.subset(sources), decoded).sum()) for name, s in self.sensitivity.items())
         sections = writer.write_file(encoding).layout.section_bytes()
@@ -372,7 +372,7 @@ class QualityTarget(Sizing):
                 lo = mid
         self.allocated = curve[hi].patch_config(encoder.config)
         self.record["quality_target"] = {
-            "precision": {"options": curve[hi].describe(), "curve_points": len(curve),
+            "target_psnr": self.target, "precision": {"options": curve[hi].describe(), "curve_points": len(curve),
                           "chosen_point": hi, "psnr": round(judged[hi], 3),
                           "judged": {str(i): round(v, 3) for i, v in sorted(judged.items())},
                           "seconds": round(time.perf_counter() - start, 2)}}

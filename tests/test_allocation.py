@@ -180,3 +180,21 @@ def test_position_grids_cost_fewer_bytes_and_more_picture_as_they_coarsen(scene)
     with_grids = PrecisionSearch({"POSITION": grids}, len(scene), small)
     assert with_grids.matching({}, 11).options["POSITION"].bits == 11
     assert with_grids.matching({}, 14).options["POSITION"].bits == 16  # not measured: the finest
+
+
+def test_the_summary_names_the_chosen_codebooks_and_grid(capsys):
+    """The encode summary prints what the search chose, positions included, for a size target
+    and for a quality target that kept every Gaussian."""
+    from spcodec.encoder.progress import print_summary
+
+    options = {"SCALE": {"entry_dim": 1, "entries": 64}, "POSITION": {"bits": 13}}
+    rate = {"target_bytes": 1000, "predicted_bytes": 990, "precision": {"options": options}}
+    aim = {"target_psnr": 40.0, "precision": {"chosen_point": 2, "curve_points": 9,
+                                              "psnr": 40.21, "options": options}}
+    import sys
+    print_summary({"gaussians": 10, "bytes": 990, "sketch_gaussians": 0, "patch_gaussians": 10,
+                   "sketch": {}, "patch_layers": 1, "sections": {}, "rate": rate,
+                   "quality_target": aim, "seconds": {"patch": 1.0}}, sys.stdout)
+    out = capsys.readouterr().out
+    assert "scale 1x64; positions at 13 bits" in out
+    assert "point 3 of 9 of the precision curve reaches 40.21 dB" in out

@@ -16,8 +16,12 @@ memory:
   decoder's inflater against fflate's on the scene's zlib sections.
 
 The best over rounds is reported. Needs ``npm ci`` in web/ and (for SPZ) in bench/web/.
+``--extra LABEL=SCENE:FILE`` adds a given .spc of one of the scenes as a row of its own (say the
+same scene with and without context-coded indices, bench/bench_contexts.py --keep), timed in the
+same rounds.
 
     python bench/bench_web_decode.py [--repeat 10] [--rounds 3] [--workdir DIR] [--json OUT]
+        [--extra LABEL=SCENE:FILE ...]
 """
 
 from __future__ import annotations
@@ -80,6 +84,8 @@ def main() -> None:
     parser.add_argument("--workdir", type=Path, default=Path(tempfile.gettempdir()) / "spc-web-bench")
     parser.add_argument("--scenes", nargs="*", default=list(SCENES))
     parser.add_argument("--json", type=Path, help="also write the results here")
+    parser.add_argument("--extra", action="append", default=[], metavar="LABEL=SCENE:FILE",
+                        help="also time FILE, an .spc of SCENE, as the row LABEL")
     args = parser.parse_args()
     args.workdir.mkdir(parents=True, exist_ok=True)
     root = data_dir()
@@ -90,6 +96,12 @@ def main() -> None:
         encode(root / ply, spc)
         scenes.append({"name": name, "spc": str(spc), "ply": str(root / ply),
                        "spz": str(root / spz) if spz else None})
+    for extra in args.extra:
+        label, _, rest = extra.partition("=")
+        name, _, spc = rest.partition(":")
+        if not (label and spc) or name not in SCENES:
+            parser.error(f"--extra wants LABEL=SCENE:FILE with SCENE one of {', '.join(SCENES)}")
+        scenes.append({"name": label, "spc": spc, "ply": str(root / SCENES[name][0]), "spz": None})
     config = args.workdir / "config.json"
     config.write_text(json.dumps({"repeat": args.repeat, "scenes": scenes}))
 

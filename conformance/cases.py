@@ -7,6 +7,7 @@ imports them, so declaring stays below collecting and nothing imports back.
 from __future__ import annotations
 
 from . import (  # importing them declares their cases
+    contexts_cases,
     invalid_cases,
     preview_cases,
     revision_cases,
@@ -18,9 +19,10 @@ from .declare import CASES, Case
 __all__ = ["Case", "all_cases"]
 
 
-MODULES = (valid_cases, invalid_cases, stream_cases, preview_cases, revision_cases)
+MODULES = (valid_cases, invalid_cases, stream_cases, preview_cases, revision_cases,
+           contexts_cases)
 """The case modules in the suite's order: spec 1.0.1's cases after those of 1.0, then 1.1's,
-then 1.1.1's."""
+then 1.1.1's, then 1.2's."""
 
 
 def all_cases() -> list[Case]:

@@ -134,7 +134,7 @@ class Manifest:
     root: Path
     vectors: list[Vector]
     generator: dict = field(default_factory=dict)
-    spec_version: str = "1.1.1"
+    spec_version: str = "1.2"
 
     def path(self, relative: str) -> Path:
         return self.root / relative

@@ -17,6 +17,7 @@ from spcodec.codecs import Gunzipped, crc32, gunzip, gunzip_head, is_gzip
 from spcodec.container import FIXED_HEADER_SIZE, GZIP_MAGIC, MAGIC, header_size
 from spcodec.errors import ChecksumError, FormatError, LimitError, TruncatedError, UsageError
 from spcodec.limits import DEFAULT_LIMITS, Limits
+from spcodec.sections import IndexContext
 
 from .header import Header, header_bytes_needed, read_header
 from .layers import (
@@ -29,6 +30,7 @@ from .layers import (
     prepare_patch_layer,
     prepare_sketch_layer,
     read_codebooks,
+    read_index_contexts,
 )
 
 Source = Union[str, os.PathLike, bytes, bytearray, memoryview, BinaryIO]
@@ -57,7 +59,8 @@ class DecodeResult:
 
 
 class _LayerDecoder:
-    """Decodes layers of one file in order, keeping the codebooks that layer 1 carries.
+    """Decodes layers of one file in order, keeping the codebooks and index contexts that
+    layer 1 carries.
 
     Each layer is first *prepared* (CRC-checked, inflated, parsed, Draco-decoded) and only then
     given output memory, so the output is sized by data that exists rather than by a count the
@@ -66,6 +69,7 @@ class _LayerDecoder:
 
     def __init__(self, header: Header, limits: Limits) -> None:
         self.header, self.limits, self.codebooks = header, limits, None
+        self.contexts: list[IndexContext] = []
 
     def load(self, data: bytes | memoryview, index: int) -> Payloads:
         """Decoding step 7 for layer ``index``: CRC-check and inflate its sections."""
@@ -77,7 +81,8 @@ class _LayerDecoder:
             return prepare_sketch_layer(payloads, self.header, self.limits)
         if self.codebooks is None:
             self.codebooks = read_codebooks(payloads, self.header)
-        return prepare_patch_layer(payloads, self.header, index, self.codebooks)
+            self.contexts = read_index_contexts(payloads, self.codebooks)
+        return prepare_patch_layer(payloads, self.header, index, self.codebooks, self.contexts)
 
     def fill(self, plan: SketchPlan | PatchPlan, index: int,
              out: GaussianCloud | None = None) -> DecodedLayer:

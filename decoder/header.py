@@ -36,6 +36,7 @@ KNOWN_SECTIONS: dict[int, tuple[str, bool]] = {
     SectionType.PATCH_CODEBOOKS: ("first", True),
     SectionType.PATCH_POSITIONS: ("patch", True),
     SectionType.PATCH_ATTRIBUTES: ("patch", True),
+    SectionType.PATCH_INDEX_CONTEXTS: ("first", True),
 }
 _MANDATORY = {
     "sketch": {SectionType.SKETCH_CLUSTERS, SectionType.SKETCH_POSITIONS,

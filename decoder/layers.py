@@ -26,9 +26,11 @@ from spcodec.limits import Limits
 from spcodec.polynomial import features, monomial_count, normalize_positions
 from spcodec.sections import (
     Codebook,
+    IndexContext,
     PatchPositions,
     SketchLayout,
     parse_codebooks,
+    parse_index_contexts,
     parse_indices,
     parse_positions,
     parse_sketch,
@@ -307,6 +309,13 @@ def read_codebooks(payloads: Payloads, header: Header) -> list[Codebook]:
     return parse_codebooks(payloads[SectionType.PATCH_CODEBOOKS], header.sh_degree)
 
 
+def read_index_contexts(payloads: Payloads, codebooks: list[Codebook]) -> list[IndexContext]:
+    """The context records of layer 1 (spec 7.5), which serve every patch layer; none when the
+    file has no PATCH_INDEX_CONTEXTS section."""
+    raw = payloads.get(SectionType.PATCH_INDEX_CONTEXTS)
+    return [] if raw is None else parse_index_contexts(raw, codebooks)
+
+
 @dataclass
 class PatchPlan:
     """A patch layer's positions and index columns, validated against their actual bytes."""
@@ -321,11 +330,12 @@ class PatchPlan:
 
 
 def prepare_patch_layer(payloads: Payloads, header: Header, index: int,
-                        codebooks: list[Codebook]) -> PatchPlan:
-    """Parse one patch layer's loaded payloads ([R-52]..[R-58])."""
+                        codebooks: list[Codebook],
+                        contexts: list[IndexContext] | None = None) -> PatchPlan:
+    """Parse one patch layer's loaded payloads ([R-52]..[R-58], [R-107])."""
     n = header.layers[index].gaussian_count
     positions = parse_positions(payloads[SectionType.PATCH_POSITIONS], n)
-    columns = parse_indices(payloads[SectionType.PATCH_ATTRIBUTES], n, codebooks)
+    columns = parse_indices(payloads[SectionType.PATCH_ATTRIBUTES], n, codebooks, contexts)
     return PatchPlan(index, positions, columns)
 
 

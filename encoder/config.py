@@ -390,6 +390,9 @@ class PatchConfig:
     #: Views (training split, never eval's) and their (width, height) for "blend".
     importance_views: int = 6
     importance_resolution: tuple[int, int] = (256, 192)
+    #: Code index columns given earlier ones where that makes the file smaller (format 1.2's
+    #: PATCH_INDEX_CONTEXTS, chosen by measurement in encoder/contexts.py); False: 1.0 coding.
+    index_contexts: bool = True
 
     @property
     def stored_position_bits(self) -> int:

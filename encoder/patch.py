@@ -11,19 +11,21 @@ shows the Gaussians that matter most.
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from spcodec.attributes import PatchAttribute, canonical_rotation, encode_opacity
 from spcodec.cloud import GaussianCloud
-from spcodec.container import MAX_CODEBOOK_ENTRIES
+from spcodec.container import MAX_CODEBOOK_ENTRIES, Codec
 from spcodec.decoder.layers import fill_patch_attributes
 from spcodec.imaging.views import robust_bounds
+from spcodec.index_contexts import IndexContext
 from spcodec.sections import Codebook, PatchPositions
 from spcodec.writer import PatchLayer
 
 from .config import DEFAULT_POSITION_BITS, RETRAINED_POSITION_BITS, PatchConfig, codebook_entries
+from .contexts import choose_index_contexts
 from .draco import encode_ordered, grid_for
 from .kmeans import exhaustive_codebook, nearest, sampled_codebook
 from .morton import morton_codes
@@ -69,7 +71,7 @@ def input_grid(xyz: np.ndarray, bits: int) -> np.ndarray | None:
 
     Inputs decoded from SPZ sit on a grid of 2^-12 (fourth_st: about 1,200 levels per axis):
     coding them on a grid of their own box at 16 or 18 bits moves every one of them a little
-    (fourth_st at 18 bits: 69.7 dB in the viewer for positions alone, docs/RESULTS.md 14.4)."""
+    (fourth_st at 18 bits: 69.7 dB in the viewer for positions alone, docs/LOG.md 14.4)."""
     xyz = np.asarray(xyz, np.float64)
     if len(xyz) == 0 or not np.isfinite(xyz).all():
         return None
@@ -184,7 +186,7 @@ def assign_rotation(values: np.ndarray, entries: np.ndarray) -> np.ndarray:
     entry at every multiple in :data:`ROTATION_SCALES`, and each Gaussian keeps the multiple
     whose rounded quaternion points closest to its own. The search is a finer grid of
     directions for free: the rms angle error falls 1.7x on fourth_st and 2.6x on guitar against
-    rounding the unit quaternion itself (docs/RESULTS.md 14.4)."""
+    rounding the unit quaternion itself (docs/LOG.md 14.4)."""
     q = np.asarray(values, np.float64)
     flat = entries.astype(np.float64)[:, 0]
     order = np.argsort(flat, kind="stable")
@@ -270,6 +272,22 @@ class PatchEncoding:
     layers: list[PatchLayer]
     order: list[np.ndarray]
     """For each layer, the indices (into the input cloud) of its Gaussians in stored order."""
+    index_contexts: bool = False
+    """Whether the file may code index columns given earlier ones (``PatchConfig.index_contexts``:
+    the writer of the file chooses them, knowing its codec)."""
+    _chosen: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def contexts_for(self, codec: Codec, level: int | None) -> list[IndexContext]:
+        """The context records for a file of this encoding written with ``codec`` at ``level``
+        (empty when contexts are off or none pays), chosen once per codec and level: a file is
+        written several times (trial sizes, the final file) from one encoding."""
+        if not self.index_contexts:
+            return []
+        key = (int(codec), level)
+        if key not in self._chosen:
+            layers = self.layers if sum(map(len, self.layers)) else []
+            self._chosen[key] = choose_index_contexts(self.codebooks, layers, codec, level)
+        return self._chosen[key]
 
 
 class PatchEncoder:
@@ -395,7 +413,7 @@ class PatchEncoder:
                                          cfg.stored_position_bits)
             layers.append(PatchLayer(positions, quantized.subset(members).indices))
             orders.append(members)
-        return PatchEncoding(quantized.codebooks, layers, orders)
+        return PatchEncoding(quantized.codebooks, layers, orders, cfg.index_contexts)
 
     def measure_importance(self, cloud: GaussianCloud) -> np.ndarray:
         """Importance (n,) float64 of every Gaussian of ``cloud`` by the configured measure.

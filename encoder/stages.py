@@ -69,7 +69,9 @@ class SceneWriter:
         if patch is None:
             return EncodedScene(self.sh_degree, self.sketch, [], [], self.metadata)
         layers = patch.layers if sum(map(len, patch.layers)) else []
-        return EncodedScene(self.sh_degree, self.sketch, patch.codebooks, layers, self.metadata)
+        return EncodedScene(self.sh_degree, self.sketch, patch.codebooks, layers, self.metadata,
+                            index_contexts=patch.contexts_for(self.options.codec,
+                                                              self.options.level))
 
     def write(self, patch: PatchEncoding | None) -> bytes:
         return self.write_file(patch).data

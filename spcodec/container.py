@@ -44,6 +44,8 @@ VERSION_MINOR = 0
 expresses it)."""
 PREVIEW_MINOR = 1
 """The minor version that added the ``PREVIEW`` section (spec 7.4): files that carry one say 1.1."""
+CONTEXTS_MINOR = 2
+"""The minor version that added ``PATCH_INDEX_CONTEXTS`` (spec 7.5): files that carry it say 1.2."""
 
 # spec 3.1 - fixed header, 48 bytes
 FixedHeader = Struct(
@@ -116,6 +118,7 @@ class SectionType(enum.IntEnum):
     PATCH_CODEBOOKS = 0x0020
     PATCH_POSITIONS = 0x0021
     PATCH_ATTRIBUTES = 0x0022
+    PATCH_INDEX_CONTEXTS = 0x0023
 
 
 class Codec(enum.IntEnum):

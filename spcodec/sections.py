@@ -28,6 +28,7 @@ from .container import (
 )
 from .draco_io import decode_points
 from .errors import FormatError
+from .index_contexts import IndexContext, column_entries, parse_contexts, resolve_ranks
 from .limits import Limits
 from .polynomial import MAX_DEGREE, monomial_count
 
@@ -270,8 +271,12 @@ def pack_indices(indices: dict[PatchAttribute, np.ndarray], codebooks: list[Code
     return b"".join(c.tobytes() for c in columns)
 
 
-def parse_indices(raw: bytes, count: int, codebooks: list[Codebook]) -> dict[PatchAttribute, np.ndarray]:
-    """Index columns per attribute as (groups, count) uint8 views; validates range ([R-52])."""
+def parse_indices(raw: bytes, count: int, codebooks: list[Codebook],
+                  contexts: list[IndexContext] | None = None) -> dict[PatchAttribute, np.ndarray]:
+    """Index columns per attribute as (groups, count) uint8 arrays; validates range ([R-52]).
+
+    With ``contexts`` (spec 7.5) the stored target columns are ranks, range-checked like indices
+    and then resolved into indices ([R-107])."""
     groups = index_groups(codebooks)
     if len(raw) != count * groups:
         raise FormatError(f"PATCH_ATTRIBUTES holds {len(raw)} bytes, expected {count} Gaussians "
@@ -286,7 +291,25 @@ def parse_indices(raw: bytes, count: int, codebooks: list[Codebook]) -> dict[Pat
             raise FormatError(f"a {cb.attribute.name} index exceeds the codebook's "
                               f"{cb.entries.shape[0]} entries", "bad-value")
         out[cb.attribute] = block
+    if contexts:
+        flat, row = resolve_ranks(flat, contexts), 0
+        for cb in codebooks:
+            out[cb.attribute] = flat[row:row + cb.groups]
+            row += cb.groups
     return out
+
+
+# spec 7.5 - PATCH_INDEX_CONTEXTS (1.2): u8 count, then per record u8 target, u8 context and a
+# u8[E_context][E_target] table; its sizes depend on the codebooks, so it is parsed by hand
+# (spcodec/index_contexts.py) rather than with a construct definition.
+def parse_index_contexts(raw: bytes, codebooks: list[Codebook]) -> list[IndexContext]:
+    """Parse and validate PATCH_INDEX_CONTEXTS against the codebooks' columns ([R-105])."""
+    return parse_contexts(raw, codebook_columns(codebooks))
+
+
+def codebook_columns(codebooks: list[Codebook]) -> np.ndarray:
+    """Entry count of every index column in [R-52] order."""
+    return column_entries([cb.entries.shape[0] for cb in codebooks], [cb.groups for cb in codebooks])
 
 
 @dataclass

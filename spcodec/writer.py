@@ -20,6 +20,7 @@ import numpy as np
 from .attributes import PatchAttribute
 from .codecs import compress, crc32, gzip_wrap, read_gzip_layer_ends
 from .container import (
+    CONTEXTS_MINOR,
     FIXED_HEADER_SIZE,
     LAYER_DTYPE,
     MAGIC,
@@ -36,6 +37,7 @@ from .container import (
     header_size,
 )
 from .fileio import atomic_write
+from .index_contexts import IndexContext, pack_contexts, to_ranks
 from .sections import (
     Codebook,
     PatchPositions,
@@ -82,6 +84,9 @@ class EncodedScene:
     patch_layers: list[PatchLayer] = field(default_factory=list)
     metadata: dict | None = None
     preview: Preview | None = None
+    index_contexts: list[IndexContext] = field(default_factory=list)
+    """Context-coded index columns (spec 7.5): written as ``PATCH_INDEX_CONTEXTS`` in layer 1
+    when not empty, every patch layer's target columns then stored as ranks."""
 
     @property
     def sketch_count(self) -> int:
@@ -183,8 +188,9 @@ def assemble(sections: list[SectionSpec], layers: list[LayerSpec], sh_degree: in
     """Lay out header, layer table, TOC and sections; compute offsets and CRCs ([R-4]..[R-12]).
 
     With ``store_when_larger``, a section that its codec would make larger is stored uncompressed
-    (codec none) instead. The version is 1.0, or 1.1 when a ``PREVIEW`` section needs it ([R-92]:
-    the oldest minor version that expresses the file).
+    (codec none) instead. The version is 1.0, 1.1 when a ``PREVIEW`` section needs it, 1.2 when a
+    ``PATCH_INDEX_CONTEXTS`` section does ([R-92]: the oldest minor version that expresses the
+    file).
     """
     return assemble_file(sections, layers, sh_degree, level, header_overrides,
                          store_when_larger).data
@@ -219,8 +225,7 @@ def assemble_file(sections: list[SectionSpec], layers: list[LayerSpec], sh_degre
         if layer.end_offset is not None:
             layer_ends[i] = layer.end_offset
         table[i] = (int(layer.kind), b"\0\0\0", layer.gaussian_count, layer_ends[i])
-    minor = PREVIEW_MINOR if any(sec.type == SectionType.PREVIEW for sec in sections) \
-        else VERSION_MINOR
+    minor = minor_version(sec.type for sec in sections)
     header = dict(magic=MAGIC, version_major=VERSION_MAJOR, version_minor=minor, flags=0,
                   header_size=start, layer_count=len(layers), section_count=len(sections),
                   sh_degree=sh_degree, reserved=b"\0" * 7,
@@ -232,6 +237,14 @@ def assemble_file(sections: list[SectionSpec], layers: list[LayerSpec], sh_degre
     layout = FileLayout(tuple(extents), tuple(layer.gaussian_count for layer in layers),
                         tuple(layer_ends), offset)
     return WrittenFile(block + b"".join(bodies), layout)
+
+
+def minor_version(section_types) -> int:
+    """The oldest minor version whose sections include every one of ``section_types`` ([R-92])."""
+    types = set(section_types)
+    if SectionType.PATCH_INDEX_CONTEXTS in types:
+        return CONTEXTS_MINOR
+    return PREVIEW_MINOR if SectionType.PREVIEW in types else VERSION_MINOR
 
 
 def _type_name(section_type: int) -> str:
@@ -271,13 +284,25 @@ def scene_sections(scene: EncodedScene, codec: Codec = Codec.ZLIB) -> tuple[list
         if k == 1:
             sections.append(SectionSpec(SectionType.PATCH_CODEBOOKS, k,
                                         pack_codebooks(scene.codebooks), codec))
+            if scene.index_contexts:  # beside the codebooks, before what it applies to
+                sections.append(SectionSpec(SectionType.PATCH_INDEX_CONTEXTS, k,
+                                            pack_contexts(scene.index_contexts), codec))
         sections.append(SectionSpec(SectionType.PATCH_POSITIONS, k,
                                     pack_positions(patch.positions), codec))
         sections.append(SectionSpec(SectionType.PATCH_ATTRIBUTES, k,
-                                    pack_indices(patch.indices, scene.codebooks), codec,
-                                    column_bytes=len(patch)))
+                                    stored_indices(patch, scene), codec, column_bytes=len(patch)))
         layers.append(LayerSpec(LayerKind.PATCH, len(patch)))
     return sections, layers
+
+
+def stored_indices(patch: PatchLayer, scene: EncodedScene) -> bytes:
+    """A layer's PATCH_ATTRIBUTES payload: its index columns, target columns as ranks
+    ([R-52], [R-107])."""
+    raw = pack_indices(patch.indices, scene.codebooks)
+    if not scene.index_contexts or not len(patch):
+        return raw
+    columns = np.frombuffer(raw, np.uint8).reshape(-1, len(patch))
+    return to_ranks(columns, scene.index_contexts).tobytes()
 
 
 def build_bitstream(scene: EncodedScene, options: WriteOptions | None = None) -> bytes:

@@ -18,6 +18,7 @@ import {
 } from './header.js';
 import { OutputLimitError } from './inflate.js';
 import { checkLimit, resolveLimits } from './limits.js';
+import { parseContexts, resolveRanks } from './contexts.js';
 import { checkIndices, fillPatch, parseCodebooks, parsePositions } from './patch.js';
 import { fillSketch, prepareSketch } from './sketch.js';
 
@@ -114,7 +115,8 @@ function viewCloud(cloud, start, count) {
 
 // ------------------------------------------------------------------------------ layer decoding
 /**
- * Decodes the layers of one file in order, keeping the codebooks that layer 1 carries.
+ * Decodes the layers of one file in order, keeping the codebooks and index contexts that layer 1
+ * carries.
  */
 class LayerDecoder {
   /**
@@ -128,6 +130,8 @@ class LayerDecoder {
     this.draco = null;
     /** @type {import('./patch.js').Codebook[] | null} */
     this.codebooks = null;
+    /** @type {import('./contexts.js').IndexContext[]} */
+    this.contexts = [];
     /** @type {Uint8Array | null} */
     this.metadata = null;
   }
@@ -183,12 +187,15 @@ class LayerDecoder {
     if (!this.codebooks) {
       this.codebooks = parseCodebooks(/** @type {Uint8Array} */ (payloads.get(SectionType.PATCH_CODEBOOKS)),
         this.header.shDegree);
+      const contexts = payloads.get(SectionType.PATCH_INDEX_CONTEXTS);
+      this.contexts = contexts ? parseContexts(contexts, this.codebooks) : [];
     }
     const n = this.header.layers[index].gaussianCount;
     const { mode, positions } = parsePositions(/** @type {Uint8Array} */ (payloads.get(SectionType.PATCH_POSITIONS)),
       n, this.draco, index);
-    const indices = /** @type {Uint8Array} */ (payloads.get(SectionType.PATCH_ATTRIBUTES));
-    checkIndices(indices, n, this.codebooks);
+    const stored = /** @type {Uint8Array} */ (payloads.get(SectionType.PATCH_ATTRIBUTES));
+    checkIndices(stored, n, this.codebooks);
+    const indices = resolveRanks(stored, n, this.contexts);
     return { gaussianCount: n, mode, positions, indices };
   }
 

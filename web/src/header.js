@@ -28,6 +28,7 @@ export const SectionType = Object.freeze({
   PATCH_CODEBOOKS: 0x0020,
   PATCH_POSITIONS: 0x0021,
   PATCH_ATTRIBUTES: 0x0022,
+  PATCH_INDEX_CONTEXTS: 0x0023,
 });
 
 /** @type {Record<number, string>} */
@@ -46,6 +47,7 @@ const KNOWN_SECTIONS = {
   [SectionType.PATCH_CODEBOOKS]: ['first', true],
   [SectionType.PATCH_POSITIONS]: ['patch', true],
   [SectionType.PATCH_ATTRIBUTES]: ['patch', true],
+  [SectionType.PATCH_INDEX_CONTEXTS]: ['first', true],
 };
 
 /** @type {Record<string, number[]>} */

@@ -18,7 +18,7 @@ from typing import Callable, NoReturn, Sequence
 
 from spcodec.errors import FormatError, Interrupted, SpcodecError, TruncatedError, UsageError
 
-from . import attach_preview, conformance, decode, demo, embed, encode, info, render, serve
+from . import attach_preview, conformance, decode, demo, embed, encode, info, render, serve, tile
 from . import eval as evaluate
 from .options import EXIT_BROKEN_PIPE, EXIT_ERROR, EXIT_OK, EXIT_USAGE
 
@@ -27,7 +27,7 @@ Configure = Callable[[argparse.ArgumentParser], None]
 COMMANDS: dict[str, tuple[str, Configure, Handler]] = {
     module.NAME: (module.HELP, module.configure, module.run)
     for module in (decode, embed, info, attach_preview, serve, demo, conformance, encode,
-                   evaluate, render)
+                   evaluate, render, tile)
 }
 """Sub-command -> (help text, what adds its options, what runs it), in --help's order."""
 

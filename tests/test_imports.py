@@ -16,7 +16,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = {"spcodec": "spcodec", "decoder": "spcodec.decoder", "encoder": "spcodec.encoder",
-            "imaging": "spcodec.imaging", "conformance": "spcodec.conformance", "cli": "spcodec.cli"}
+            "imaging": "spcodec.imaging", "conformance": "spcodec.conformance", "cli": "spcodec.cli",
+            "tiling": "spcodec.tiling"}
 """Source folder -> the package it installs as (pyproject's package-dir)."""
 
 

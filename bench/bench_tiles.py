@@ -1,0 +1,156 @@
+"""Tiled encodes of a large scene (issue 39): time per Gaussian, peak memory, workers, merges.
+
+``make`` writes the large scene: jittered copies of a shared scene side by side
+(:func:`scenes.tiled_scene`), as a binary PLY, made again the same way by the same command.
+``run`` encodes one configuration in a fresh process and prints its wall time and the peak
+resident memory of the process and of its children (``resource.getrusage``: the Dask workers are
+children of their nannies, which are children of this process), so no run inherits another's peak.
+``compare`` runs the tiled encode with 1 and 2 local workers and the single-file no-retrain encode
+of a 500 k scene, each in its own process. ``merges`` judges the levels of detail of a built
+tileset: renders of an inner node's merged Gaussians against renders of the finer Gaussians it
+replaces (its children's), at a few views with the CPU renderer, beside a random subset of the same
+count as a yardstick.
+
+    python bench/bench_tiles.py make --gaussians 2000000 -o big.ply [--base fourth_st]
+    python bench/bench_tiles.py compare big.ply --work OUT/ [--leaf-size 65536]
+    python bench/bench_tiles.py merges OUT/tiled-w1 [--nodes 4] [--views 4]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from spcodec import read_ply, write_ply
+
+from scenes import REAL, data_dir, load_scene, tiled_scene  # bench/ is on sys.path
+
+
+def make(args: argparse.Namespace) -> None:
+    """Write the large scene."""
+    base = read_ply(data_dir() / REAL[args.base])
+    write_ply(args.output, tiled_scene(base, args.gaussians, seed=args.seed))
+    print(f"{args.output}: {args.gaussians} Gaussians from {args.base}")
+
+
+def run_one(args: argparse.Namespace) -> None:
+    """One configuration in this process; prints a JSON line (time, memory, sizes)."""
+    import torch
+
+    torch.set_num_threads(1)
+    start = time.perf_counter()
+    if args.mode == "single":
+        from spcodec.encoder import encode, preset_config
+
+        cloud = load_scene(args.scene)
+        result = encode(cloud, preset_config("balanced"))
+        out = {"gaussians": len(cloud), "bytes": len(result.data)}
+    else:
+        from spcodec.tiling import TilingConfig, build_tileset
+
+        summary = build_tileset(args.input, args.output, TilingConfig(
+            leaf_size=args.leaf_size, workers=args.workers))
+        out = {"gaussians": summary.input_gaussians, "encoded": summary.encoded_gaussians,
+               "bytes": summary.bytes, "nodes": summary.nodes, "depth": summary.depth,
+               "partition_s": round(summary.partition_seconds, 2),
+               "nodes_s": round(summary.nodes_seconds, 2)}
+    seconds = time.perf_counter() - start
+    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    out.update(mode=args.mode, workers=args.workers, seconds=round(seconds, 2),
+               us_per_gaussian=round(1e6 * seconds / out["gaussians"], 1),
+               peak_mb_self=round(own), peak_mb_children=round(children))
+    print(json.dumps(out), flush=True)
+
+
+def compare(args: argparse.Namespace) -> None:
+    """The tiled encode with 1 and 2 workers and the single-file baseline, each in a new
+    process."""
+    here = Path(__file__).resolve()
+    runs = [["--mode", "single", "--scene", args.single]] if args.single else []
+    for workers in args.workers:
+        folder = Path(args.work) / f"tiled-w{workers}"
+        if folder.exists():
+            shutil.rmtree(folder)  # a fresh build, not a resume
+        runs.append(["--mode", "tiled", "--input", str(args.input), "--output", str(folder),
+                     "--workers", str(workers), "--leaf-size", str(args.leaf_size)])
+    for extra in runs:
+        done = subprocess.run([sys.executable, str(here), "run-one", *extra], check=True,
+                              capture_output=True, text=True)
+        print(done.stdout.strip().splitlines()[-1], flush=True)
+
+
+def merges(args: argparse.Namespace) -> None:
+    """PSNR of merged levels against the finer Gaussians they replace."""
+    import torch
+
+    from spcodec.imaging.metrics import psnr
+    from spcodec.imaging.render import render_image
+    from spcodec.imaging.views import sample_views
+    from spcodec.tiling.rows import rows_to_cloud
+
+    torch.set_num_threads(1)
+    root = Path(args.tileset)
+    records = {p.stem: json.loads(p.read_text()) for p in (root / "nodes").glob("*.json")}
+    inner = sorted((i for i in records if f"{i}0" in records), key=len, reverse=True)
+    rng = np.random.default_rng(0)
+    for node_id in inner[:args.nodes]:
+        children = sorted(i for i in records if i[:-1] == node_id and len(i) == len(node_id) + 1)
+        finer = rows_to_cloud(np.concatenate([np.load(root / records[c]["cloud"])
+                                              for c in children]))
+        merged = rows_to_cloud(np.load(root / records[node_id]["cloud"]))
+        subset = finer.subset(np.sort(rng.choice(len(finer), len(merged), replace=False)))
+        cameras = sample_views(finer, args.views, resolution=(args.size, args.size))
+        scores = {"psnr_merged": [], "psnr_random_subset": []}
+        for camera in cameras:
+            reference = render_image(finer, camera, device="cpu")
+            scores["psnr_merged"].append(psnr(reference, render_image(merged, camera, device="cpu")))
+            scores["psnr_random_subset"].append(psnr(reference,
+                                                     render_image(subset, camera, device="cpu")))
+        print(json.dumps({"node": node_id, "finer": len(finer), "coarse": len(merged),
+                          "error": records[node_id]["error"],
+                          "capped": records[node_id].get("capped"),
+                          **{k: round(float(np.mean(v)), 2) for k, v in scores.items()}}),
+              flush=True)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="command", required=True)
+    m = sub.add_parser("make")
+    m.add_argument("--gaussians", type=int, default=2_000_000)
+    m.add_argument("--base", default="fourth_st", choices=sorted(REAL))
+    m.add_argument("--seed", type=int, default=0)
+    m.add_argument("-o", "--output", required=True)
+    c = sub.add_parser("compare")
+    c.add_argument("input")
+    c.add_argument("--work", required=True, help="folder for the tilesets")
+    c.add_argument("--leaf-size", type=int, default=65536)
+    c.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    c.add_argument("--single", default="500k", help="scene of the single-file baseline ('' skips)")
+    r = sub.add_parser("run-one")
+    r.add_argument("--mode", choices=["single", "tiled"], required=True)
+    r.add_argument("--scene", default="500k")
+    r.add_argument("--input")
+    r.add_argument("--output")
+    r.add_argument("--workers", type=int, default=0)
+    r.add_argument("--leaf-size", type=int, default=65536)
+    g = sub.add_parser("merges")
+    g.add_argument("tileset")
+    g.add_argument("--nodes", type=int, default=4)
+    g.add_argument("--views", type=int, default=4)
+    g.add_argument("--size", type=int, default=256)
+    args = p.parse_args()
+    {"make": make, "compare": compare, "run-one": run_one, "merges": merges}[args.command](args)
+
+
+if __name__ == "__main__":
+    main()

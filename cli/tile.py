@@ -1,0 +1,51 @@
+"""``spcodec tile``: a scene too big for one file, as a 3D Tiles 1.1 tileset of .spc nodes."""
+
+from __future__ import annotations
+
+import argparse
+
+from .options import EXIT_OK, Bounded
+
+NAME = "tile"
+HELP = ("encode a scene as a tileset (OUT/tileset.json, 3D Tiles 1.1, and one .spc per node): "
+        "read in chunks, cut into a k-d tree, coarser levels merged from finer ones, each node "
+        "encoded on its own as a task on Dask; `spcodec serve OUT/` streams it by view")
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    from spcodec.tiling.config import TilingConfig
+
+    defaults = TilingConfig()
+    p.add_argument("input", help="the scene (a binary PLY is read memory-mapped; other formats "
+                   "are loaded whole)")
+    p.add_argument("-o", "--output", required=True, help="the tileset's folder")
+    p.add_argument("--leaf-size", type=Bounded(int, 16), default=defaults.leaf_size, metavar="N",
+                   help="Gaussians per node at most, %(type)s; a worker's memory follows it "
+                   "(default: %(default)s)")
+    p.add_argument("--branching", type=int, default=defaults.branching, choices=(2, 4, 8),
+                   help="children per node, and how many Gaussians a coarser level merges into "
+                   "one (default: %(default)s)")
+    p.add_argument("--preset", default=defaults.preset,
+                   help="the no-retrain preset every node is encoded with (default: %(default)s)")
+    p.add_argument("--workers", type=Bounded(int, 0), default=defaults.workers, metavar="N",
+                   help="local worker processes, one thread each, %(type)s; 0 encodes in this "
+                   "process (default: %(default)s)")
+    p.add_argument("--cluster", metavar="ADDRESS",
+                   help="a running Dask scheduler (tcp://host:8786) instead of local workers; "
+                   "its workers must see the output folder at the same path (default: local "
+                   "workers)")
+    p.add_argument("--seed", type=int, default=defaults.seed,
+                   help="the encoder's seed: the same seed, the same bytes (default: %(default)s)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from spcodec.tiling import TilingConfig, build_tileset
+
+    config = TilingConfig(leaf_size=args.leaf_size, branching=args.branching, preset=args.preset,
+                          workers=args.workers, cluster=args.cluster, seed=args.seed)
+    summary = build_tileset(args.input, args.output, config)
+    print(f"{summary.tileset}: {summary.nodes} nodes ({summary.leaves} leaves, depth "
+          f"{summary.depth}), {summary.input_gaussians:,} Gaussians in, "
+          f"{summary.encoded_gaussians:,} encoded over every level, {summary.bytes:,} bytes; "
+          f"{summary.encoded_nodes} nodes encoded this run, the others reused")
+    return EXIT_OK

@@ -1,0 +1,334 @@
+"""Tiled encodes (spcodec.tiling): chunked input, the two-pass partition, the moment-preserving
+merge, node files, the 3D Tiles index, Dask scheduling with retries, and resume."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from spcodec.cloud import GaussianCloud
+from spcodec.decoder import decode
+from spcodec.ply import read_ply, write_ply
+from spcodec.synthetic import make_scene
+from spcodec.tiling import TilingConfig, build_tileset
+from spcodec.tiling.build import FAIL_ONCE_ENV
+from spcodec.tiling.merge import (
+    MAX_OPACITY,
+    covariances,
+    merge_groups,
+    merge_level,
+    neighbour_groups,
+    weights,
+)
+from spcodec.tiling.partition import build_tree, input_identity, leaf_path, partition
+from spcodec.tiling.rows import cloud_to_rows, rows_to_cloud
+from spcodec.tiling.source import open_source
+
+from conftest import REPO, real_file
+
+pytestmark = pytest.mark.usefixtures("single_torch_thread")
+
+LEAF = 700
+
+
+def scene(seed: int = 0, sh_degree: int = 1) -> GaussianCloud:
+    return make_scene(seed=seed, curves=4, per_curve=250, blobs=1400, sh_degree=sh_degree).cloud
+
+
+@pytest.fixture(scope="module")
+def scene_ply(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("scene") / "scene.ply"
+    write_ply(path, scene())
+    return path
+
+
+@pytest.fixture(scope="module")
+def small_ply(tmp_path_factory) -> Path:
+    """Two leaves and a root with branching 2: the smallest tree, for the engine's tests."""
+    path = tmp_path_factory.mktemp("small") / "small.ply"
+    write_ply(path, make_scene(seed=1, curves=2, per_curve=250, blobs=900, sh_degree=1).cloud)
+    return path
+
+
+SMALL = dict(leaf_size=700, branching=2)
+
+
+@pytest.fixture(scope="module")
+def built(scene_ply, tmp_path_factory):
+    """The synthetic scene built in this process (no engine)."""
+    out = tmp_path_factory.mktemp("tiles")
+    summary = build_tileset(scene_ply, out, TilingConfig(leaf_size=LEAF, workers=0))
+    return out, summary
+
+
+def sorted_rows(rows: np.ndarray) -> np.ndarray:
+    return rows[np.lexsort(rows.T[::-1])]
+
+
+def tiles(node: dict):
+    yield node
+    for child in node.get("children", []):
+        yield from tiles(child)
+
+
+# ------------------------------------------------------------------------------- input
+def test_chunks_of_a_mapped_ply_are_the_reader_s_cloud(scene_ply):
+    source = open_source(scene_ply)
+    assert source.mapped
+    whole = GaussianCloud.concat([c for _, c in source.chunks(333)])
+    assert whole.equals(read_ply(scene_ply))
+    assert np.array_equal(source.all_positions(1000), whole.means)
+
+
+def test_other_inputs_are_loaded_whole_and_chunked_alike(tmp_path):
+    from plyfile import PlyData, PlyElement
+
+    from spcodec.ply import ply_bytes
+
+    cloud = scene(sh_degree=0).subset(slice(0, 300))
+    _, records = ply_bytes(cloud)
+    path = tmp_path / "ascii.ply"
+    PlyData([PlyElement.describe(records, "vertex")], text=True).write(str(path))
+    source = open_source(path)
+    assert not source.mapped
+    assert GaussianCloud.concat([c for _, c in source.chunks(64)]).equals(read_ply(path))
+
+
+def test_a_ply_without_the_3dgs_properties_is_refused(tmp_path):
+    from plyfile import PlyData, PlyElement
+
+    from spcodec.errors import FormatError
+
+    records = np.zeros(4, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
+    path = tmp_path / "points.ply"
+    PlyData([PlyElement.describe(records, "vertex")]).write(str(path))
+    with pytest.raises(FormatError, match="lacks the 3DGS properties f_dc_0"):
+        open_source(path)
+
+
+def test_rows_round_trip():
+    cloud = scene(sh_degree=3).subset(slice(0, 50))
+    assert rows_to_cloud(cloud_to_rows(cloud)).equals(cloud)
+
+
+# --------------------------------------------------------------------------- partition
+@given(n=st.integers(1, 3000), leaf=st.integers(64, 400), branching=st.sampled_from([2, 4, 8]),
+       seed=st.integers(0, 2 ** 16))
+def test_tree_leaves_hold_every_row_once_and_at_most_leaf_size(n, leaf, branching, seed):
+    rng = np.random.default_rng(seed)
+    points = rng.normal(size=(n, 3)) * rng.uniform(0.01, 10, 3)
+    nodes, leaf_rows = build_tree(points, leaf, branching)
+    held = np.concatenate(list(leaf_rows.values()))
+    assert np.array_equal(np.sort(held), np.arange(n))
+    assert all(0 < len(r) <= leaf for r in leaf_rows.values())
+    for node in nodes.values():
+        if node.children:
+            assert len(node.children) == branching
+            assert sum(nodes[c].count for c in node.children) == node.count
+        else:
+            assert node.count == len(leaf_rows[node.id])
+
+
+def test_spilled_leaves_hold_every_input_row_exactly_once(scene_ply, tmp_path):
+    source = open_source(scene_ply)
+    identity = input_identity(scene_ply, leaf_size=400, branching=4)
+    parts = partition(source, tmp_path, identity, 400, 4, chunk_rows=257)
+    spilled = np.concatenate([np.load(leaf_path(tmp_path, n.id)) for n in parts.leaves])
+    original = cloud_to_rows(read_ply(scene_ply))
+    assert np.array_equal(sorted_rows(spilled), sorted_rows(original))
+    assert all(n.count <= 400 for n in parts.leaves)
+    # same input and settings: the recorded partition is reused, not made again
+    before = leaf_path(tmp_path, parts.leaves[0].id).stat().st_mtime_ns
+    again = partition(source, tmp_path, identity, 400, 4, chunk_rows=257)
+    assert leaf_path(tmp_path, parts.leaves[0].id).stat().st_mtime_ns == before
+    assert [n.leaf_digest for n in again.leaves] == [n.leaf_digest for n in parts.leaves]
+
+
+# ------------------------------------------------------------------------------- merge
+@st.composite
+def clouds(draw):
+    n = draw(st.integers(1, 40))
+    rng = np.random.default_rng(draw(st.integers(0, 2 ** 16)))
+    quats = rng.normal(size=(n, 4))
+    return GaussianCloud(means=rng.normal(size=(n, 3)), scales=rng.uniform(-4, 0, (n, 3)),
+                         quats=quats, opacities=rng.uniform(-6, 4, n), sh_dc=rng.normal(size=(n, 3)),
+                         sh_rest=rng.normal(size=(n, 3, 3)))
+
+
+@given(cloud=clouds(), size=st.integers(1, 8))
+def test_merge_keeps_weight_mean_and_covariance(cloud, size):
+    labels, count = neighbour_groups(cloud.means.astype(np.float64), size)
+    assert count == -(-len(cloud) // size) and np.bincount(labels).max() <= size
+    merged = merge_groups(cloud, labels, count).cloud
+    w = weights(cloud)
+    total = np.bincount(labels, w, count)
+    mean = np.stack([np.bincount(labels, w * cloud.means[:, i], count) for i in range(3)], 1) / total[:, None]
+    offset = cloud.means - mean[labels]
+    second = covariances(cloud) + offset[:, :, None] * offset[:, None, :]
+    cov = np.zeros((count, 3, 3))
+    np.add.at(cov, labels, w[:, None, None] * second)
+    cov /= total[:, None, None]
+    got = covariances(merged)
+    scale = np.abs(cov).max(axis=(1, 2))[:, None, None]
+    assert np.allclose(merged.means, mean, atol=1e-5)
+    assert np.all(np.abs(got - cov) <= 1e-4 * scale + 1e-12)
+    alpha = merged.activated_opacity().astype(np.float64)
+    capped = alpha >= MAX_OPACITY * (1 - 1e-6)
+    # the total weight is kept wherever the opacity cap does not bind, and never exceeded
+    merged_weight = weights(merged)
+    assert np.allclose(merged_weight[~capped], total[~capped], rtol=1e-4)
+    assert np.all(merged_weight <= total * (1 + 1e-4))
+    colour = np.stack([np.bincount(labels, w * cloud.sh_dc[:, i], count) for i in range(3)], 1)
+    assert np.allclose(merged.sh_dc, colour / total[:, None], atol=1e-5)
+
+
+def test_a_level_reduces_by_the_branching_factor():
+    cloud = scene()
+    level = merge_level(cloud, 4)
+    assert len(level.cloud) == -(-len(cloud) // 4)
+    assert level.spatial_error > 0 and level.cloud.is_finite()
+
+
+# ---------------------------------------------------------------------- the whole build
+def check_tileset(out: Path, input_count: int) -> dict:
+    doc = json.loads((out / "tileset.json").read_text())
+    assert doc["asset"]["version"] == "1.1"
+    assert doc["geometricError"] >= doc["root"]["geometricError"] > 0
+    leaf_inputs = 0
+    for tile in tiles(doc["root"]):
+        assert {"boundingVolume", "geometricError", "refine", "content"} <= set(tile)
+        assert tile["refine"] == "REPLACE" and len(tile["boundingVolume"]["box"]) == 12
+        node = out / tile["content"]["uri"]
+        extras = tile["extras"]["spcodec"]
+        assert node.stat().st_size == extras["bytes"]
+        assert len(decode(node)) == extras["gaussians"]
+        children = tile.get("children", [])
+        if not children:
+            assert tile["geometricError"] == 0
+            leaf_inputs += extras["inputGaussians"]
+        box = np.array(tile["boundingVolume"]["box"])
+        for child in children:
+            assert 0 <= child["geometricError"] <= tile["geometricError"]
+            inner = np.array(child["boundingVolume"]["box"])
+            lo, hi = box[:3] - box[[3, 7, 11]], box[:3] + box[[3, 7, 11]]
+            child_lo, child_hi = inner[:3] - inner[[3, 7, 11]], inner[:3] + inner[[3, 7, 11]]
+            assert np.all(child_lo >= lo - 1e-6) and np.all(child_hi <= hi + 1e-6)
+    assert leaf_inputs == input_count
+    return doc
+
+
+def test_every_node_decodes_to_the_count_the_index_says(built):
+    out, summary = built
+    doc = check_tileset(out, summary.input_gaussians)
+    assert summary.leaves > 1 and summary.encoded_nodes == summary.nodes
+    root = doc["root"]["extras"]["spcodec"]
+    assert root["gaussians"] <= LEAF  # an inner node holds about as many as a leaf
+
+
+def test_a_second_run_does_no_work(built, scene_ply):
+    out, summary = built
+    stamps = {p.name: p.stat().st_mtime_ns for p in (out / "nodes").iterdir()}
+    (out / "nodes" / "n77.spc").write_bytes(b"a node of an earlier tree")
+    again = build_tileset(scene_ply, out, TilingConfig(leaf_size=LEAF, workers=0))
+    assert again.encoded_nodes == 0 and again.bytes == summary.bytes
+    # the same files, untouched, and none that the index does not name
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "nodes").iterdir()} == stamps
+
+
+@pytest.mark.slow  # starts a Dask cluster: 20-80 s on a busy 2-core machine
+def test_two_local_workers_retry_a_failed_node_and_a_rerun_resumes(small_ply, tmp_path,
+                                                                    monkeypatch):
+    monkeypatch.setenv(FAIL_ONCE_ENV, "n0")
+    summary = build_tileset(small_ply, tmp_path, TilingConfig(**SMALL, workers=2, retries=1))
+    assert (tmp_path / "work" / "failed-once-n0").exists()  # the first attempt did fail
+    assert summary.nodes == 3 and summary.encoded_nodes == 3
+    check_tileset(tmp_path, summary.input_gaussians)
+    # in this process, a changed encoder setting (the seed) redoes every node; the same, none
+    assert build_tileset(small_ply, tmp_path, TilingConfig(**SMALL, workers=0, seed=1)) \
+        .encoded_nodes == 3
+    assert build_tileset(small_ply, tmp_path, TilingConfig(**SMALL, workers=0, seed=1)) \
+        .encoded_nodes == 0
+
+
+@pytest.mark.slow
+def test_without_retries_an_injected_failure_fails_the_build(small_ply, tmp_path, monkeypatch):
+    monkeypatch.setenv(FAIL_ONCE_ENV, "n1")
+    with pytest.raises(RuntimeError, match="injected failure of node n1"):
+        build_tileset(small_ply, tmp_path, TilingConfig(**SMALL, workers=2, retries=0))
+    assert not (tmp_path / "tileset.json").exists()
+
+
+# ------------------------------------------------------------------------------- the CLI
+def run_cli(*args: str):
+    import subprocess
+    return subprocess.run([sys.executable, "-m", "spcodec.tiling", *args], capture_output=True,
+                          text=True, timeout=120)
+
+
+def test_cli_builds_and_reports(built, scene_ply, capsys):
+    from spcodec.tiling.__main__ import main
+
+    out, summary = built
+    assert main([str(scene_ply), "-o", str(out), "--leaf-size", str(LEAF), "--workers", "0"]) == 0
+    line = capsys.readouterr().out
+    assert f"{summary.nodes} nodes" in line and "0 nodes encoded" in line
+
+
+def test_spcodec_tile_resumes_what_the_library_built_and_refuses_in_one_line(built, scene_ply,
+                                                                            tmp_path, capsys):
+    """``spcodec tile`` runs the same build: on the folder the library wrote, nothing is redone;
+    a missing input is one line and exit 2, with nothing written."""
+    from spcodec.cli import main as spcodec
+
+    out, summary = built
+    assert spcodec(["tile", str(scene_ply), "-o", str(out), "--leaf-size", str(LEAF),
+                    "--workers", "0"]) == 0
+    assert f"{summary.nodes} nodes" in capsys.readouterr().out
+    assert spcodec(["tile", str(tmp_path / "missing.ply"), "-o", str(tmp_path / "t")]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "missing.ply" in error and len(error.splitlines()) == 1
+    assert not (tmp_path / "t" / "tileset.json").exists()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["missing.ply"], "no such file"),
+    (["{ply}", "--leaf-size", "10"], "leaf size must be at least"),
+    (["{ply}", "--branching", "3"], "branching must be one of"),
+    (["{ply}", "--preset", "best"], "unknown preset"),
+    (["{text}"], "not"),
+])
+def test_cli_refuses_bad_input_with_one_line(scene_ply, tmp_path, args, message):
+    text = tmp_path / "notes.txt"
+    text.write_text("hello\n")
+    args = [a.format(ply=scene_ply, text=text) for a in args]
+    result = run_cli(*args, "-o", str(tmp_path / "out"))
+    assert result.returncode == 2
+    assert message in result.stderr and len(result.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "out" / "tileset.json").exists()
+
+
+# --------------------------------------------------------------------------- real scene
+def load_bench_scenes():
+    spec = importlib.util.spec_from_file_location("scenes", REPO / "bench" / "scenes.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.slow
+def test_a_tiled_copy_of_a_real_scene(tmp_path):
+    scenes = load_bench_scenes()
+    base = read_ply(real_file(scenes.REAL["fourth_st"]))
+    cloud = scenes.tiled_scene(base.subset(slice(0, 3000)), 12000)
+    path = tmp_path / "tiled.ply"
+    write_ply(path, cloud)
+    summary = build_tileset(path, tmp_path / "out", TilingConfig(leaf_size=3000, workers=0))
+    assert summary.leaves >= 4 and summary.input_gaussians == 12000
+    check_tileset(tmp_path / "out", 12000)

@@ -1,0 +1,157 @@
+"""Build a tileset: partition, then encode every node on its own, leaves first.
+
+Each node is an ordinary ``.spc`` made by the no-retrain encoder (``nodes/<id>.spc``); a leaf
+encodes its share of the input, an inner node the merge of its children's Gaussians
+(:mod:`.merge`), so every node holds about ``leaf_size`` Gaussians and one encode's memory follows
+that setting, not the scene. Beside each file a small JSON records the digest of what the node was
+made from; a re-run whose digest matches reuses the file (resume after a crash or a new setting).
+
+Geometric error (the 3D Tiles field that drives refinement): 0 at a leaf, which holds the input
+itself; at an inner node, the merge's spatial error (the largest distance from a merged centre to
+a centre it replaced, :func:`.merge.merge_level`), raised to its children's largest, so it never
+grows down the tree.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from spcodec.fileio import atomic_write
+
+from .merge import covariances, merge_level
+from .partition import leaf_path
+from .rows import cloud_to_rows, rows_to_cloud
+
+FAIL_ONCE_ENV = "SPCODEC_TILING_FAIL_ONCE"
+"""Test hook: node ids (comma-separated) whose first attempt raises, to exercise retries."""
+
+FORMAT_VERSION = 1
+"""Bumped when a node's content would change for the same input (part of every digest)."""
+
+
+@dataclass(frozen=True)
+class NodeJob:
+    """What one node task needs: picklable, so it can travel to a worker process."""
+
+    id: str
+    children: tuple[str, ...]
+    leaf_digest: str | None
+    out_dir: str
+    preset: str
+    seed: int
+    branching: int
+
+
+def build_node(job: NodeJob, children: list[dict]) -> dict:
+    """Encode one node (or reuse its file) and return its record (count, bytes, box, error...).
+
+    ``children`` are the children's records, in order: an inner node merges their Gaussians.
+    """
+    out = Path(job.out_dir)
+    config = encoder_config(job)
+    digest = node_digest(job, [c["digest"] for c in children], config.to_json())
+    record_path = out / "nodes" / f"{job.id}.json"
+    previous = _reusable(record_path, digest, out, job)
+    if previous is not None:
+        return {**previous, "encoded": False}
+    record_path.unlink(missing_ok=True)  # its files are about to change: never pair old and new
+    _maybe_fail(job.id, out)
+    start = time.perf_counter()
+    if job.children:
+        finer = rows_to_cloud(np.concatenate([np.load(out / c["cloud"]) for c in children]))
+        level = merge_level(finer, job.branching)
+        cloud, error, capped = level.cloud, level.spatial_error, level.capped
+        error = max([error] + [c["error"] for c in children])
+        _save_rows(cloud_path(out, job), cloud_to_rows(cloud))
+    else:
+        cloud, error, capped = rows_to_cloud(np.load(leaf_path(out / "work", job.id))), 0.0, 0
+    from spcodec.encoder import encode
+
+    result = encode(cloud, config, source_name=f"tile {job.id}")
+    atomic_write(out / "nodes" / f"{job.id}.spc", result.data)
+    lo, hi = content_box(cloud)
+    for child in children:
+        lo, hi = np.minimum(lo, child["box"][0]), np.maximum(hi, child["box"][1])
+    record = {"id": job.id, "digest": digest,
+              "cloud": cloud_path(out, job).relative_to(out).as_posix(),
+              "count": int(len(result.source_index)), "input_count": len(cloud),
+              "bytes": len(result.data),
+              "box": [lo.tolist(), hi.tolist()], "error": float(error), "capped": capped,
+              "seconds": time.perf_counter() - start}
+    atomic_write(record_path, json.dumps(record).encode())
+    return {**record, "encoded": True}
+
+
+def encoder_config(job: NodeJob):
+    """The no-retrain encoder settings every node of the tileset is encoded with.
+
+    One process per encode (``n_jobs=1``): nodes run side by side on the engine's workers, one
+    core each, and a worker may not start processes of its own; a pool per small encode would
+    also cost more to start than it saves. ``n_jobs`` changes no byte of the file, so it is no
+    part of the digest (:meth:`EncoderConfig.to_json` leaves it out).
+    """
+    from spcodec.encoder import preset_config
+
+    return dataclasses.replace(preset_config(job.preset), seed=job.seed, n_jobs=1)
+
+
+def node_digest(job: NodeJob, child_digests: list[str], settings: dict) -> str:
+    """What decides a node's file: its leaf rows or its children's digests (a merge is
+    deterministic), the merge's branching and the encoder settings."""
+    doc = {"version": FORMAT_VERSION, "leaf": job.leaf_digest, "children": child_digests,
+           "branching": job.branching, "settings": settings}
+    return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def cloud_path(out: Path, job: NodeJob) -> Path:
+    """The Gaussians node ``job`` is encoded from, which its parent merges: a leaf's spilled
+    rows, or an inner node's merged level."""
+    if not job.children:
+        return leaf_path(out / "work", job.id)
+    return out / "work" / "clouds" / f"{job.id}.npy"
+
+
+def content_box(cloud) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned box holding every Gaussian out to three standard deviations."""
+    reach = 3.0 * np.sqrt(np.maximum(np.diagonal(covariances(cloud), axis1=1, axis2=2), 0.0))
+    means = cloud.means.astype(np.float64)
+    return (means - reach).min(axis=0), (means + reach).max(axis=0)
+
+
+def _reusable(record_path: Path, digest: str, out: Path, job: NodeJob) -> dict | None:
+    """The recorded node when its file exists and was made from the same input."""
+    try:
+        record = json.loads(record_path.read_text())
+    except (OSError, ValueError):
+        return None
+    spc = out / "nodes" / f"{job.id}.spc"
+    if record.get("digest") != digest or not spc.is_file() or spc.stat().st_size != record["bytes"]:
+        return None
+    if not cloud_path(out, job).is_file():  # the parent merges it
+        return None
+    return record
+
+
+def _save_rows(path: Path, rows: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(path, lambda fh: np.save(fh, rows))
+
+
+def _maybe_fail(node_id: str, out: Path) -> None:
+    """The fault-injection hook (:data:`FAIL_ONCE_ENV`): fail a listed node's first attempt,
+    leaving a marker so the retry goes through."""
+    listed = os.environ.get(FAIL_ONCE_ENV, "")
+    if node_id not in listed.split(","):
+        return
+    marker = out / "work" / f"failed-once-{node_id}"
+    if not marker.exists():
+        marker.touch()
+        raise RuntimeError(f"injected failure of node {node_id} ({FAIL_ONCE_ENV})")

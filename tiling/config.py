@@ -1,0 +1,54 @@
+"""The settings of a tiled encode."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from spcodec.errors import UsageError
+
+BRANCHINGS = (2, 4, 8)
+
+
+@dataclass(frozen=True)
+class TilingConfig:
+    """How a scene is cut, merged, encoded and scheduled.
+
+    ``leaf_size`` bounds every node: a leaf holds at most that many input Gaussians and an inner
+    node about as many merged ones, so it sets the peak memory of one encode. ``branching`` is
+    both the tree's fan-out and the merge's reduction per level (the depth follows as
+    ``log_branching(N / leaf_size)``). ``workers=0`` runs every node in this process, with no
+    engine; otherwise a local Dask cluster of that many single-threaded worker processes, unless
+    ``cluster`` gives a scheduler's address (``tcp://host:8786``), whose workers then do the work
+    and must see the output folder at the same path (a shared file system): tasks pass file
+    names, not Gaussians.
+    """
+
+    leaf_size: int = 65536
+    branching: int = 4
+    preset: str = "balanced"
+    workers: int = 2
+    cluster: str | None = None
+    seed: int = 0
+    chunk_rows: int = 262144
+    """Rows read from the input at a time (the partition's peak memory besides the centres)."""
+    retries: int = 2
+    """Times the engine re-runs a failed node task before the build fails."""
+
+    def check(self) -> None:
+        """One-line UsageError for a setting that cannot work."""
+        from spcodec.encoder.presets import PRESETS
+
+        if self.branching not in BRANCHINGS:
+            raise UsageError(f"branching must be one of {', '.join(map(str, BRANCHINGS))}, "
+                             f"got {self.branching}")
+        if self.leaf_size < 16 * self.branching:
+            raise UsageError(f"leaf size must be at least {16 * self.branching} with branching "
+                             f"{self.branching}, got {self.leaf_size}")
+        if self.preset not in PRESETS:
+            raise UsageError(f"unknown preset {self.preset!r}: use one of {', '.join(PRESETS)}")
+        if self.workers < 0:
+            raise UsageError(f"workers must be 0 (this process) or more, got {self.workers}")
+        if self.chunk_rows < 1:
+            raise UsageError(f"chunk rows must be positive, got {self.chunk_rows}")
+        if self.retries < 0:
+            raise UsageError(f"retries must be 0 or more, got {self.retries}")

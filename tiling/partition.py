@@ -1,0 +1,187 @@
+"""Partition a scene into spatial leaves in two passes over the input.
+
+Pass 1 reads centres only (12 bytes per Gaussian) and builds a k-d tree that splits at medians;
+pass 2 streams the scene in chunks and spills every Gaussian's row to its leaf's ``.npy`` file.
+
+Why a median k-d tree and not an octree: a median split halves the count whatever the density,
+so every leaf holds between ``leaf_size / branching`` and ``leaf_size`` Gaussians and the depth is
+``log_b(N / leaf_size)``. Captured scenes are very unevenly dense (a detailed centre, a sparse
+far field), and an octree's leaves, cut at fixed places, range from a handful to its cap, so its
+node count, per-node encode time and peak memory would follow the density instead of a setting.
+Each tile node splits into ``branching`` (2, 4 or 8) children by ``log2(branching)`` median
+splits, each across the longest side of the part's bounding box, so children stay compact.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from spcodec.fileio import atomic_write
+
+from .rows import cloud_to_rows, row_width
+from .source import SceneSource
+
+PARTITION_FILE = "partition.json"
+
+
+@dataclass
+class TreeNode:
+    """One tile of the hierarchy: a leaf holds input Gaussians, an inner node merged ones."""
+
+    id: str
+    """"n" for the root, then one digit per level: the child's position under its parent."""
+    count: int
+    """Input Gaussians below this node."""
+    children: list[str] = field(default_factory=list)
+    leaf_digest: str | None = None
+    """For leaves, the SHA-256 of the spilled rows (what the leaf's encode takes)."""
+
+    @property
+    def is_leaf(self) -> bool:
+        return not self.children
+
+
+@dataclass
+class Partition:
+    """The tree, and where each leaf's rows were spilled."""
+
+    nodes: dict[str, TreeNode]
+    sh_degree: int
+    identity: dict
+    """The input and settings it was made from; a re-run with the same reuses it."""
+
+    @property
+    def leaves(self) -> list[TreeNode]:
+        return [n for n in self.nodes.values() if n.is_leaf]
+
+    def bottom_up(self) -> list[TreeNode]:
+        """Every node after all of its children (deepest first)."""
+        return sorted(self.nodes.values(), key=lambda n: -len(n.id))
+
+
+def median_split(points: np.ndarray, index: np.ndarray, left: int) -> tuple[np.ndarray, np.ndarray]:
+    """``index`` cut in two across the longest side of its points' box: the ``left`` rows with the
+    smallest coordinates on that axis, then the rest."""
+    coords = points[index]
+    axis = int(np.argmax(coords.max(axis=0) - coords.min(axis=0)))
+    order = np.argpartition(coords[:, axis], left - 1) if 0 < left < len(index) else \
+        np.arange(len(index))
+    return index[order[:left]], index[order[left:]]
+
+
+def split_into(points: np.ndarray, index: np.ndarray, parts: int) -> list[np.ndarray]:
+    """``index`` cut into ``parts`` (a power of two) halves of halves at medians."""
+    pieces = [index]
+    while len(pieces) < parts:
+        pieces = [half for piece in pieces for half in median_split(points, piece, len(piece) // 2)]
+    return pieces
+
+
+def build_tree(points: np.ndarray, leaf_size: int, branching: int) -> tuple[dict[str, TreeNode],
+                                                                           dict[str, np.ndarray]]:
+    """The tile tree over ``points`` and, per leaf id, the row numbers it holds (ascending)."""
+    nodes: dict[str, TreeNode] = {}
+    leaf_rows: dict[str, np.ndarray] = {}
+    stack = [("n", np.arange(len(points), dtype=np.int64))]
+    while stack:
+        node_id, index = stack.pop()
+        node = TreeNode(node_id, int(len(index)))
+        nodes[node_id] = node
+        if len(index) <= leaf_size:
+            leaf_rows[node_id] = np.sort(index)
+            continue
+        for k, part in enumerate(split_into(points, index, branching)):
+            node.children.append(f"{node_id}{k}")
+            stack.append((f"{node_id}{k}", part))
+    return nodes, leaf_rows
+
+
+def leaf_path(work: Path, node_id: str) -> Path:
+    """Where leaf ``node_id``'s rows are spilled."""
+    return work / "leaves" / f"{node_id}.npy"
+
+
+def partition(source: SceneSource, work: Path, identity: dict, leaf_size: int, branching: int,
+              chunk_rows: int) -> Partition:
+    """Both passes, or the partition already in ``work`` when it was made from the same input
+    with the same settings (``identity``)."""
+    previous = load_partition(work, identity)
+    if previous is not None:
+        return previous
+    (work / PARTITION_FILE).unlink(missing_ok=True)  # written again once the spill is complete
+    points = source.all_positions(chunk_rows)                      # pass 1: centres only
+    nodes, leaf_rows = build_tree(points, leaf_size, branching)
+    del points
+    spill(source, work, leaf_rows, chunk_rows)                     # pass 2: whole rows
+    for node_id in leaf_rows:
+        nodes[node_id].leaf_digest = file_digest(leaf_path(work, node_id))
+    result = Partition(nodes, source.sh_degree, identity)
+    doc = {"identity": identity, "sh_degree": source.sh_degree,
+           "nodes": [asdict(n) for n in nodes.values()]}
+    atomic_write(work / PARTITION_FILE, json.dumps(doc).encode())  # last: marks the spill done
+    return result
+
+
+def spill(source: SceneSource, work: Path, leaf_rows: dict[str, np.ndarray],
+          chunk_rows: int) -> None:
+    """Pass 2: each chunk's rows appended to their leaves' files (each file sized in advance)."""
+    if (work / "leaves").is_dir():  # another partition's leaves: none may be mistaken for ours
+        shutil.rmtree(work / "leaves")
+    (work / "leaves").mkdir(parents=True)
+    owner = np.empty(source.count, np.int32)      # leaf number of every row
+    names = sorted(leaf_rows)
+    width = row_width(source.sh_degree)
+    for k, name in enumerate(names):
+        owner[leaf_rows[name]] = k
+        np.lib.format.open_memmap(leaf_path(work, name), mode="w+", dtype=np.float32,
+                                  shape=(len(leaf_rows[name]), width)).flush()
+    cursor = np.zeros(len(names), np.int64)
+    for start, cloud in source.chunks(chunk_rows):
+        rows = cloud_to_rows(cloud)
+        ids = owner[start:start + len(cloud)]
+        order = np.argsort(ids, kind="stable")
+        present, first, counts = np.unique(ids[order], return_index=True, return_counts=True)
+        for k, lo, n in zip(present, first, counts):
+            out = np.load(leaf_path(work, names[k]), mmap_mode="r+")
+            out[cursor[k]:cursor[k] + n] = rows[order[lo:lo + n]]
+            out.flush()
+            del out
+            cursor[k] += n
+
+
+def load_partition(work: Path, identity: dict) -> Partition | None:
+    """The partition recorded in ``work`` when its identity matches and its leaves exist."""
+    try:
+        doc = json.loads((work / PARTITION_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    if doc.get("identity") != identity:
+        return None
+    nodes = {n["id"]: TreeNode(**n) for n in doc["nodes"]}
+    if not all(leaf_path(work, n.id).is_file() for n in nodes.values() if n.is_leaf):
+        return None
+    return Partition(nodes, doc["sh_degree"], identity)
+
+
+def input_identity(path: Path, **settings) -> dict:
+    """What decides a partition: the input file (resolved name, size, modification time) and the
+    settings; a changed file or setting makes a fresh one."""
+    stat = os.stat(path)
+    return {"input": str(Path(path).resolve()), "size": stat.st_size,
+            "mtime_ns": stat.st_mtime_ns, **settings}
+
+
+def file_digest(path: Path) -> str:
+    """SHA-256 of a file, read in 8 MiB pieces."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for piece in iter(lambda: fh.read(8 << 20), b""):
+            digest.update(piece)
+    return digest.hexdigest()

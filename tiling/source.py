@@ -1,0 +1,162 @@
+"""Scene input in chunks of rows, so that peak memory follows the chunk and not the file.
+
+A binary INRIA PLY is memory-mapped (plyfile maps the vertex element of a binary file as a numpy
+memmap) and only the rows of the chunk asked for are turned into a
+:class:`~spcodec.cloud.GaussianCloud`; the operating system pages the rest in and out. Every other
+input the format registry reads (SPZ, SOG, .splat, a PlayCanvas compressed PLY, an ASCII PLY) is
+loaded whole and then handed out in the same chunks: those formats are compressed or packed, so
+rows cannot be addressed in place, and they are rarely the 20 M-Gaussian captures tiling is for.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from spcodec.cloud import SH_REST_COUNTS, GaussianCloud
+from spcodec.errors import FormatError, UsageError
+
+_REQUIRED = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
+             "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+
+
+class SceneSource:
+    """Rows ``0..count`` of a scene, read a chunk at a time."""
+
+    count: int
+    sh_degree: int
+    mapped: bool
+    """True when rows are read in place (memory-mapped), False when the scene was loaded whole."""
+
+    def positions(self, start: int, stop: int) -> np.ndarray:
+        """Centres of rows ``start..stop`` as (n, 3) float32 (pass 1 reads nothing else)."""
+        raise NotImplementedError
+
+    def chunk(self, start: int, stop: int) -> GaussianCloud:
+        """Rows ``start..stop`` as a cloud (a copy, independent of the source)."""
+        raise NotImplementedError
+
+    def chunks(self, size: int) -> Iterator[tuple[int, GaussianCloud]]:
+        """``(start, cloud)`` for consecutive chunks of at most ``size`` rows."""
+        for start in range(0, self.count, size):
+            yield start, self.chunk(start, min(self.count, start + size))
+
+    def all_positions(self, size: int) -> np.ndarray:
+        """Every centre, read ``size`` rows at a time (12 bytes per Gaussian in memory)."""
+        out = np.empty((self.count, 3), np.float32)
+        for start in range(0, self.count, size):
+            stop = min(self.count, start + size)
+            out[start:stop] = self.positions(start, stop)
+        return out
+
+
+class MappedPly(SceneSource):
+    """A binary INRIA PLY whose vertex records are memory-mapped one chunk at a time.
+
+    Each chunk maps only its own rows and unmaps them when done: file pages that stay mapped
+    count in the process's resident memory, so a map of the whole file would make the peak
+    follow the file after all (the pages are reclaimable, but the measure would not say so).
+    """
+
+    def __init__(self, vertex: np.memmap, name: str) -> None:
+        names = set(vertex.dtype.names or ())
+        missing = [p for p in _REQUIRED if p not in names]
+        if missing:
+            raise FormatError(f"{name}: PLY lacks the 3DGS properties {', '.join(missing)}",
+                              "ply-invalid")
+        rest = sorted((p for p in names if p.startswith("f_rest_")),
+                      key=lambda p: int(p[7:]) if p[7:].isdigit() else -1)
+        if [p[7:] for p in rest] != [str(i) for i in range(len(rest))] or \
+                len(rest) % 3 or len(rest) // 3 not in SH_REST_COUNTS.values():
+            raise FormatError(f"{name}: {len(rest)} f_rest properties match no SH degree 0..3",
+                              "ply-invalid")
+        self.filename, self.offset, self.dtype = vertex.filename, vertex.offset, vertex.dtype
+        self.rest = rest
+        self.count = len(vertex)
+        self.sh_degree = next(d for d, k in SH_REST_COUNTS.items() if 3 * k == len(rest))
+        self.mapped = True
+
+    def _rows(self, start: int, stop: int) -> np.ndarray:
+        """Rows ``start..stop``, mapped for as long as the caller holds them."""
+        if stop <= start:
+            return np.zeros(0, self.dtype)
+        return np.memmap(self.filename, self.dtype, mode="r",
+                         offset=self.offset + start * self.dtype.itemsize, shape=(stop - start,))
+
+    @staticmethod
+    def _cols(rows: np.ndarray, props: list[str]) -> np.ndarray:
+        return np.stack([np.asarray(rows[p], np.float32) for p in props], axis=1)
+
+    def positions(self, start: int, stop: int) -> np.ndarray:
+        return self._cols(self._rows(start, stop), ["x", "y", "z"])
+
+    def chunk(self, start: int, stop: int) -> GaussianCloud:
+        rows = self._rows(start, stop)
+        n, k = len(rows), len(self.rest) // 3
+        rest = self._cols(rows, self.rest) if self.rest else np.zeros((n, 0), np.float32)
+        return GaussianCloud(  # f_rest is channel-major in the INRIA layout
+            means=self._cols(rows, ["x", "y", "z"]),
+            scales=self._cols(rows, ["scale_0", "scale_1", "scale_2"]),
+            quats=self._cols(rows, ["rot_0", "rot_1", "rot_2", "rot_3"]),
+            opacities=np.asarray(rows["opacity"], np.float32),
+            sh_dc=self._cols(rows, ["f_dc_0", "f_dc_1", "f_dc_2"]),
+            sh_rest=rest.reshape(n, 3, k).transpose(0, 2, 1))
+
+
+class LoadedScene(SceneSource):
+    """A scene read whole by the format registry, handed out in chunks all the same."""
+
+    def __init__(self, cloud: GaussianCloud) -> None:
+        self.cloud = cloud
+        self.count = len(cloud)
+        self.sh_degree = cloud.sh_degree
+        self.mapped = False
+
+    def positions(self, start: int, stop: int) -> np.ndarray:
+        return self.cloud.means[start:stop]
+
+    def chunk(self, start: int, stop: int) -> GaussianCloud:
+        return self.cloud.subset(slice(start, stop))
+
+
+def open_source(path: str | os.PathLike) -> SceneSource:
+    """The scene at ``path``: memory-mapped when it is a binary INRIA PLY, else loaded whole.
+
+    UsageError for a missing file, FormatError (one line) for a file no reader takes or a PLY
+    without the 3DGS properties.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise UsageError(f"{path}: no such file")
+    vertex = _mapped_vertex(path)
+    if vertex is not None:
+        return MappedPly(vertex, str(path))
+    from spcodec.formats import read_scene
+    return LoadedScene(read_scene(path))
+
+
+def _mapped_vertex(path: Path) -> np.memmap | None:
+    """The memory-mapped vertex records of a binary INRIA PLY; None for any other file (whose
+    reader then gives the error, or reads it whole)."""
+    with open(path, "rb") as fh:
+        if fh.read(4) != b"ply\n" and not _is_ply_crlf(path):
+            return None
+    from plyfile import PlyData, PlyParseError
+
+    try:
+        ply = PlyData.read(str(path), mmap="r")
+    except (PlyParseError, ValueError, EOFError, IndexError, KeyError, TypeError):
+        return None
+    elements = {el.name: el for el in ply.elements}
+    if "vertex" not in elements or "chunk" in elements:  # compressed PLY: packed, read whole
+        return None
+    vertex = elements["vertex"].data
+    return vertex if isinstance(vertex, np.memmap) else None
+
+
+def _is_ply_crlf(path: Path) -> bool:
+    with open(path, "rb") as fh:
+        return fh.read(5) == b"ply\r\n"

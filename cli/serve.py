@@ -9,12 +9,14 @@ import sys
 from .options import EXIT_OK, PORT, THROTTLE
 
 NAME = "serve"
-HELP = "serve the streaming web viewer and an .spc (with HTTP range requests)"
+HELP = "serve the streaming web viewer and an .spc or a tileset (with HTTP range requests)"
 
 
 def configure(p: argparse.ArgumentParser) -> None:
-    p.add_argument("input", help="the scene to show at /: an .spc (streamed layer by layer), or a "
-                   ".ply or .glb (loaded whole, for comparison)")
+    p.add_argument("input", help="the scene to show at /: an .spc (streamed layer by layer), a "
+                   "folder holding a tileset.json (python -m spcodec.tiling's output, streamed "
+                   "node by node as the camera looks), or a .ply or .glb (loaded whole, for "
+                   "comparison)")
     p.add_argument("--port", type=PORT, default=8000,
                    help="TCP port: %(type)s (default: %(default)s; 0 = any free port)")
     p.add_argument("--host", default="127.0.0.1",

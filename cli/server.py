@@ -18,13 +18,17 @@ slow connection. The server binds the loopback interface unless told otherwise: 
 looking at one's own files, not a web server.
 
 Layout of the URLs: ``/`` redirects to the viewer opening the first scene; ``/scenes/NAME`` are the
-scene files; every other path is a file under the web folder (``web/``: the viewer page in
-``viewer/``, the decoder in ``src/``, their npm packages in ``node_modules/``).
+scene files; a scene that is a folder holding a ``tileset.json`` (``python -m spcodec.tiling``'s
+output) is served whole under ``/scenes/NAME/`` (the index, its ``nodes/``), and ``/`` opens its
+index, which the viewer streams by view; every other path is a file under the web folder
+(``web/``: the viewer page in ``viewer/``, the decoder in ``src/``, their npm packages in
+``node_modules/``).
 """
 
 from __future__ import annotations
 
 import errno
+import json
 import mimetypes
 import os
 import re
@@ -42,6 +46,8 @@ from spcodec.errors import UsageError
 
 SCENE_PREFIX = "/scenes/"
 VIEWER_PAGE = "/viewer/index.html"
+TILESET_INDEX = "tileset.json"
+"""The index a scene folder must hold (the name ``python -m spcodec.tiling`` writes)."""
 _CHUNK = 16 * 1024
 _TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript", ".mjs": "text/javascript",
           ".json": "application/json", ".wasm": "application/wasm", ".css": "text/css",
@@ -176,15 +182,23 @@ class ViewerRequestHandler(BaseHTTPRequestHandler):
             return
         if path == "/":
             first = next(iter(self.config.scenes))
-            query = {"src": SCENE_PREFIX + first}
+            tiled = self.config.scenes[first].is_dir()
+            query = {"src": SCENE_PREFIX + first + (f"/{TILESET_INDEX}" if tiled else "")}
             if self.config.up:
                 query["up"] = self.config.up
             query = urllib.parse.urlencode(query)
             self._redirect(f"{VIEWER_PAGE}?{query}")
             return
-        if path.startswith(SCENE_PREFIX) and path[len(SCENE_PREFIX):] in self.config.scenes:
-            self._send_file(self.config.scenes[path[len(SCENE_PREFIX):]], send_body, paced=True)
-            return
+        if path.startswith(SCENE_PREFIX):
+            name, slash, rest = path[len(SCENE_PREFIX):].partition("/")
+            scene = self.config.scenes.get(name)
+            if scene is not None and (scene.is_dir() or not slash):
+                found = _file_under(scene, rest) if scene.is_dir() else scene
+                if found is None:
+                    self._refuse(HTTPStatus.NOT_FOUND, send_body)
+                else:
+                    self._send_file(found, send_body, paced=True)
+                return
         local = self._web_file(path)
         if local is None:
             self._refuse(HTTPStatus.NOT_FOUND, send_body)
@@ -192,23 +206,10 @@ class ViewerRequestHandler(BaseHTTPRequestHandler):
         self._send_file(local, send_body, paced=False)
 
     def _web_file(self, path: str) -> Path | None:
-        """The file under the web root that ``path`` names, or None (never outside the root, never
-        a hidden file, never a name the OS refuses to look up)."""
+        """The file under the web root that ``path`` names, or None."""
         if path.endswith("/"):
             path += "index.html"
-        parts = [p for p in path.split("/") if p]
-        if any(p.startswith(".") for p in parts) or "\0" in path:
-            return None
-        try:
-            root = self.config.web_root.resolve()
-            candidate = root.joinpath(*parts).resolve() if parts else root
-            if candidate != root and root not in candidate.parents:
-                return None
-            return candidate if candidate.is_file() else None
-        except (OSError, ValueError, RuntimeError):
-            # ENAMETOOLONG, EACCES, ...; ValueError: a NUL byte; RuntimeError: pathlib's
-            # "Symlink loop"
-            return None
+        return _file_under(self.config.web_root, path)
 
     def _refuse(self, status: HTTPStatus, send_body: bool) -> None:
         """A short plain-text error answer that keeps the connection usable. Unlike
@@ -272,6 +273,23 @@ class ViewerRequestHandler(BaseHTTPRequestHandler):
             remaining -= len(block)
 
 
+def _file_under(root: Path, path: str) -> Path | None:
+    """The file under ``root`` that the URL path ``path`` names, or None: never outside the root,
+    never a hidden file, never a name the OS refuses to look up."""
+    parts = [p for p in path.split("/") if p]
+    if any(p.startswith(".") for p in parts) or "\0" in path:
+        return None
+    try:
+        base = root.resolve()
+        candidate = base.joinpath(*parts).resolve() if parts else base
+        if candidate != base and base not in candidate.parents:
+            return None
+        return candidate if candidate.is_file() else None
+    except (OSError, ValueError, RuntimeError):
+        # ENAMETOOLONG, EACCES, ...; ValueError: a NUL byte; RuntimeError: pathlib's "Symlink loop"
+        return None
+
+
 class _Limited:
     """A reader that stops after ``length`` bytes (the end of a range)."""
 
@@ -292,16 +310,34 @@ def _content_type(path: Path) -> str:
 
 
 def scene_names(paths: list[str | os.PathLike]) -> dict[str, Path]:
-    """URL names for scene files (their file names; a clash is a usage error)."""
+    """URL names for scenes (their file or folder names; a clash is a usage error). A folder must
+    be a tileset: hold a ``tileset.json`` that is a JSON object with a root tile."""
     scenes: dict[str, Path] = {}
     for raw in paths:
         path = Path(raw)
-        if not path.is_file():
-            raise UsageError(f"{path}: no such file")
+        if path.is_dir():
+            check_tileset_folder(path)
+        elif not path.is_file():
+            raise UsageError(f"{path}: no such file or folder")
         if path.name in scenes:
             raise UsageError(f"two scenes are named {path.name}: serve them from separate servers")
         scenes[path.name] = path.resolve()
     return scenes
+
+
+def check_tileset_folder(folder: Path) -> None:
+    """A one-line UsageError unless ``folder`` holds a tileset index the viewer can open (the
+    viewer checks each tile; this catches the wrong folder before a page is opened)."""
+    index = folder / TILESET_INDEX
+    if not index.is_file():
+        raise UsageError(f"{folder}: a folder to serve must hold a {TILESET_INDEX} (python -m "
+                         "spcodec.tiling writes one)")
+    try:
+        document = json.loads(index.read_bytes())
+    except (OSError, ValueError) as exc:
+        raise UsageError(f"{index}: not a JSON document ({str(exc).splitlines()[0]})") from None
+    if not isinstance(document, dict) or not isinstance(document.get("root"), dict):
+        raise UsageError(f"{index}: not a 3D Tiles tileset (no root tile)")
 
 
 def make_server(scenes: list[str | os.PathLike], host: str = "127.0.0.1", port: int = 0,

@@ -382,3 +382,62 @@ def test_web_readme_says_where_the_example_pages_are_served(tmp_path):
     paragraph = next(p for p in (web / "README.md").read_text().split("\n\n") if "/examples/" in p)
     says_not_in_wheel = "does not carry them" in " ".join(paragraph.split())
     assert says_not_in_wheel == (example == 404), paragraph
+
+
+@pytest.fixture()
+def tileset_server(tmp_path):
+    """A server for a tileset folder (an index and two nodes, a hidden file, a file beside it)."""
+    folder = tmp_path / "tiled"
+    (folder / "nodes").mkdir(parents=True)
+    (folder / "tileset.json").write_text('{"asset": {"version": "1.1"}, "root": {}}')
+    (folder / "nodes" / "n.spc").write_bytes(SCENE)
+    (folder / "nodes" / "n0.spc").write_bytes(SCENE[:100])
+    (folder / "nodes" / ".hidden").write_text("hidden")
+    (tmp_path / "beside.txt").write_text("outside the web root")
+    srv = make_server([folder], port=0, web_root=tmp_path / "web")
+    thread = threading.Thread(target=srv.serve_forever, daemon=True)
+    thread.start()
+    yield srv.server_address[:2]
+    srv.shutdown()
+    srv.server_close()
+
+
+def test_a_tileset_folder_is_served_whole_and_opened_at_its_index(tileset_server):
+    response, _ = request(tileset_server, "/")
+    assert response.status == 302
+    location = urllib.parse.urlsplit(response.getheader("Location"))
+    assert urllib.parse.parse_qs(location.query) == {"src": ["/scenes/tiled/tileset.json"]}
+    response, body = request(tileset_server, "/scenes/tiled/tileset.json")
+    assert response.status == 200 and response.getheader("Content-Type") == "application/json"
+    assert body.startswith(b'{"asset"')
+    response, body = request(tileset_server, "/scenes/tiled/nodes/n.spc", {"Range": "bytes=100-199"})
+    assert response.status == 206 and body == SCENE[100:200]
+    assert response.getheader("Content-Range") == f"bytes 100-199/{len(SCENE)}"
+    assert request(tileset_server, "/scenes/tiled/nodes/n0.spc")[1] == SCENE[:100]
+
+
+@pytest.mark.parametrize("path", ["/scenes/tiled", "/scenes/tiled/", "/scenes/tiled/nodes",
+                                  "/scenes/tiled/nodes/.hidden", "/scenes/tiled/../beside.txt",
+                                  "/scenes/tiled/%2e%2e/beside.txt", "/scenes/tiled/nodes/n9.spc",
+                                  "/scenes/tiled/%00/x", "/scenes/other/tileset.json"])
+def test_nothing_outside_a_tileset_folder_or_hidden_in_it_is_served(tileset_server, path):
+    response, body = request(tileset_server, path)
+    assert response.status == 404 and b"outside" not in body and b"hidden" not in body
+
+
+@pytest.mark.parametrize("index, message", [
+    (None, "must hold a tileset.json"),
+    ("{not json", "not a JSON document"),
+    ('["a list"]', "not a 3D Tiles tileset"),
+    ('{"asset": {"version": "1.1"}}', "no root tile"),
+])
+def test_a_folder_that_is_no_tileset_fails_with_one_line(tmp_path, capsys, index, message):
+    folder = tmp_path / "out"
+    folder.mkdir()
+    if index is not None:
+        (folder / "tileset.json").write_text(index)
+    with pytest.raises(UsageError, match=message):
+        make_server([folder], port=0)
+    code = main(["serve", str(folder), "--port", "0"])
+    _, err = capsys.readouterr()
+    assert code == 2 and err.count("\n") == 1 and message in err

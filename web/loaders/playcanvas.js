@@ -2,7 +2,7 @@
 // asset like a PLY.
 //
 //   import * as pc from 'playcanvas';
-//   import { loadSpc, registerSpc } from 'spcodec/playcanvas';
+//   import { loadSpc, loadTileset, registerSpc } from 'spcodec/playcanvas';
 //
 //   // streaming: an upright entity under app.root, one GSplat child per layer as it arrives
 //   const { entity } = await loadSpc(app, pc, 'scene.spc', { onLayer: (l) => console.log(l.index) });
@@ -19,7 +19,10 @@
 //   app.assets.add(asset);
 //   app.assets.load(asset);
 //
-// Both read an .spc or a .glb written by `spcodec embed` (the .spc inside it), fetch it with HTTP
+//   // a tileset (`python -m spcodec.tiling`): nodes fetched by view within a splat budget
+//   const tiles = await loadTileset(app, pc, 'out/tileset.json', { camera, budget: 1_500_000 });
+//
+// Both .spc loaders read an .spc or a .glb written by `spcodec embed` (the .spc inside it), fetch it with HTTP
 // range requests (one per layer after the header block), and take PlayCanvas as an argument
 // (`pc`), so the app's own copy of the engine makes the resources. PlayCanvas describes splats the
 // way a 3DGS PLY does, one float array per PLY property; handing it each decoded layer under those
@@ -27,6 +30,7 @@
 // check pixel by pixel.
 
 import { streamLayers } from '../src/stream.js';
+import { TilesetStream } from '../src/tilestream.js';
 
 // PlayCanvas comes in as an argument (`pc`), not as an import: the types below say what these
 // loaders use of its objects, so that they check without PlayCanvas installed and any PlayCanvas 2
@@ -422,4 +426,90 @@ export function registerSpc(app, pc, options = {}) {
   const parser = new SpcParser(app, pc, options);
   app.loader.getHandler('gsplat').addParser(parser);
   return parser;
+}
+
+/**
+ * What the tileset loader reads of the camera entity (a PlayCanvas `Entity` with a camera
+ * component): where it is, where it looks, and its vertical field of view in degrees.
+ * @typedef {{getPosition(): {x: number, y: number, z: number},
+ *   forward: {x: number, y: number, z: number}, camera: {fov: number}}} PcCameraEntity
+ */
+
+/**
+ * Stream a tileset (`python -m spcodec.tiling`'s tileset.json of .spc nodes) into the scene by
+ * view: an entity under `parent` (untransformed: its world is the tileset's), turned upright by
+ * the root node's up axis, gets one GSplat child per node as it arrives. The root (the whole
+ * scene, coarse) comes first; then, while the camera moves, the nodes the selection by
+ * screen-space error needs within `budget` Gaussians (src/tileset.js), in view first; a parent is
+ * hidden in the step its children in view are shown. The camera is read every frame and the
+ * selection made again when it moved.
+ *
+ * @template {PcModule} M
+ * @param {PcApp} app
+ * @param {M} pc
+ * @param {string} url  the tileset.json
+ * @param {object} options
+ * @param {PcCameraEntity} options.camera  the camera entity the selection follows
+ * @param {PcEntity} [options.parent]  default app.root
+ * @param {number} [options.budget]  Gaussians drawn at most (default 1,500,000)
+ * @param {number} [options.threshold]  screen-space error in pixels past which a node refines
+ *   (default 16)
+ * @param {string} [options.up]  the up axis where the root node does not store one
+ * @param {number} [options.concurrency]  node requests at a time (default 4)
+ * @param {typeof fetch} [options.fetchImpl]
+ * @param {(arrival: import('../src/tilestream.js').TileArrival) => void} [options.onArrival]
+ * @param {(shown: Set<import('../src/tileset.js').Tile>, covers: boolean) => void} [options.onShown]
+ * @param {(loaded: number) => void} [options.onProgress]
+ * @param {(error: unknown, tile: import('../src/tileset.js').Tile) => void} [options.onError]
+ * @param {(tileset: import('../src/tileset.js').Tileset, rotation: number[], indexBytes: number) => void}
+ *   [options.onOpen]  once the index and the root are in, before the first selection: the moment
+ *   to place the camera on the scene (the root's box, turned by `rotation`)
+ * @returns {Promise<{entity: InstanceType<M['Entity']>,
+ *   stream: import('../src/tilestream.js').TilesetStream<InstanceType<M['Entity']>>,
+ *   tileset: import('../src/tileset.js').Tileset, rotation: number[], update(): void, destroy(): void}>}
+ */
+export async function loadTileset(app, pc, url, { camera, parent = app.root, budget, threshold, up = null,
+  concurrency, fetchImpl, onArrival, onShown, onProgress, onError, onOpen } = /** @type {any} */ ({})) {
+  if (!camera?.camera) throw new Error('loadTileset needs { camera }: the camera entity the selection follows');
+  const entity = /** @type {InstanceType<M['Entity']>} */ (new pc.Entity(`tileset ${url}`));
+  parent.addChild(entity);
+  /** @type {import('../src/tilestream.js').TileRenderer<InstanceType<M['Entity']>>} */
+  const renderer = {
+    add: (tile, cloud) => {
+      const child = gsplatEntity(app, pc, tile.id, cloud);
+      child.enabled = false;
+      entity.addChild(child);
+      return child;
+    },
+    show: (child, visible) => { child.enabled = visible; },
+    remove: (child) => {
+      child.enabled = false;
+      destroyOnceReplaced(app, child);
+    },
+  };
+  const stream = new TilesetStream(url, renderer, { budget, threshold, up, concurrency, fetchImpl,
+    onArrival, onShown, onProgress, onError });
+  const { tileset, rotation } = await stream.open();
+  entity.setLocalRotation(new pc.Quat(...rotation));
+  onOpen?.(tileset, rotation, stream.indexBytes);
+  let last = '';
+  const update = (force = false) => {
+    const device = /** @type {{width: number, height: number}} */ (app.graphicsDevice);
+    const p = camera.getPosition(), f = camera.forward;
+    const view = { position: [p.x, p.y, p.z], forward: [f.x, f.y, f.z], fov: camera.camera.fov,
+      height: device.height || 1, aspect: (device.width || 1) / (device.height || 1) };
+    const key = JSON.stringify(view, (_k, v) => (typeof v === 'number' ? Number(v.toPrecision(5)) : v));
+    if (!force && key === last) return;
+    last = key;
+    stream.update(view);
+  };
+  const onUpdate = () => update();
+  app.on('update', onUpdate);
+  update(true);
+  return { entity, stream, tileset, rotation, update: () => update(true),
+    destroy: () => {
+      app.off('update', onUpdate);
+      stream.close();
+      entity.destroy();
+    } };
 }

@@ -2,11 +2,15 @@
 //
 //   import * as THREE from 'three';
 //   import * as spark from '@sparkjsdev/spark';
-//   import { loadSpc } from 'spcodec/spark';
+//   import { loadSpc, loadTileset } from 'spcodec/spark';
 //
 //   scene.add(new spark.SparkRenderer({ renderer }));
 //   const { group } = await loadSpc('scene.spc', { THREE, spark, parent: scene,
 //                                                  onLayer: (l) => console.log(l.index) });
+//
+//   // a tileset (`python -m spcodec.tiling`), by view: call tiles.update() in the render loop
+//   const tiles = await loadTileset('out/tileset.json', { THREE, spark, camera, parent: scene,
+//                                    height: () => renderer.domElement.height });
 //
 // Each layer becomes a SplatMesh of its own, added (under one group turned upright, +Y up) as soon
 // as its bytes are in: Spark sorts the splats of every mesh together, so later layers refine the
@@ -18,6 +22,7 @@
 // three.js and Spark are passed in, so the app's own copies make the objects.
 
 import { streamLayers } from '../src/stream.js';
+import { TilesetStream } from '../src/tilestream.js';
 
 // three.js and Spark come in as arguments, not as imports: the types below say what the loader
 // uses of them, so that they check without either installed.
@@ -206,4 +211,88 @@ export async function loadSpc(url, { THREE, spark, parent = null, maxLayer = Inf
   });
   await Promise.all(ready);
   return { group, meshes, info: result.info, layers: result.layers, bytes: result.bytes };
+}
+
+/**
+ * What the tileset loader reads of a three.js camera (a PerspectiveCamera): where it is and looks
+ * in the world, its vertical field of view in degrees, and its aspect.
+ * @typedef {{fov: number, aspect: number,
+ *   getWorldPosition(target: any): {x: number, y: number, z: number},
+ *   getWorldDirection(target: any): {x: number, y: number, z: number}}} ThreeCamera
+ */
+
+/**
+ * Stream a tileset (`python -m spcodec.tiling`'s tileset.json of .spc nodes) by view into a
+ * THREE.Group of SplatMeshes, one per node, under `parent` (untransformed: its world is the
+ * tileset's). The root node (the whole scene, coarse) comes first; call the returned `update()`
+ * from the render loop: when the camera moved it selects again by screen-space error within
+ * `budget` Gaussians (Spark draws 0.5-2.5 M a frame) and fetches what the view needs first; a
+ * node's parent is hidden in the step its children in view are shown.
+ *
+ * @template {ThreeModule & {Vector3: new () => any}} T
+ * @template P
+ * @template {SparkMesh & {visible: boolean, dispose?(): void}} M
+ * @param {string} url  the tileset.json
+ * @param {object} options
+ * @param {T} options.THREE  the three.js module
+ * @param {SparkModule<P, M>} options.spark  the Spark module
+ * @param {ThreeCamera} options.camera  the camera the selection follows
+ * @param {number | (() => number)} options.height  the viewport's height in pixels (or a
+ *   function giving it, e.g. `() => renderer.domElement.height`)
+ * @param {ThreeParent|null} [options.parent]
+ * @param {number} [options.budget]  Gaussians drawn at most (default 1,500,000)
+ * @param {number} [options.threshold]  screen-space error in pixels past which a node refines
+ * @param {string} [options.up]  the up axis where the root node does not store one
+ * @param {number} [options.concurrency]
+ * @param {typeof fetch} [options.fetchImpl]
+ * @param {(arrival: import('../src/tilestream.js').TileArrival) => void} [options.onArrival]
+ * @param {(shown: Set<import('../src/tileset.js').Tile>, covers: boolean) => void} [options.onShown]
+ * @param {(error: unknown, tile: import('../src/tileset.js').Tile) => void} [options.onError]
+ * @returns {Promise<{group: InstanceType<T['Group']>, stream: import('../src/tilestream.js').TilesetStream<M>,
+ *   tileset: import('../src/tileset.js').Tileset, update(): void, close(): void}>}
+ */
+export async function loadTileset(url, { THREE, spark, camera, height, parent = null, budget, threshold,
+  up = null, concurrency, fetchImpl, onArrival, onShown, onError } = /** @type {any} */ ({})) {
+  if (!THREE || !spark?.SplatMesh || !spark.PackedSplats || !spark.utils || !camera) {
+    throw new Error('loadTileset needs { THREE, spark, camera, height }: three.js, Spark as a module, '
+      + 'the camera the selection follows and the viewport height');
+  }
+  const encoding = { ...spark.defines.DEFAULT_SPLAT_ENCODING };
+  const group = /** @type {InstanceType<T['Group']> & {remove(o: unknown): unknown}} */ (new THREE.Group());
+  group.name = `tileset ${url}`;
+  parent?.add(group);
+  /** @type {import('../src/tilestream.js').TileRenderer<M>} */
+  const renderer = {
+    add: (tile, cloud) => {
+      const packedSplats = new spark.PackedSplats(packCloud(cloud, spark.utils, encoding));
+      const mesh = new spark.SplatMesh({ packedSplats, splatEncoding: encoding });
+      mesh.name = tile.id;
+      mesh.visible = false;
+      group.add(mesh);
+      return mesh;
+    },
+    show: (mesh, visible) => { mesh.visible = visible; },
+    remove: (mesh) => {
+      group.remove(mesh);
+      mesh.dispose?.();
+    },
+  };
+  const stream = new TilesetStream(url, renderer, { budget, threshold, up, concurrency, fetchImpl,
+    onArrival, onShown, onError });
+  const { tileset, rotation } = await stream.open();
+  group.quaternion.set(...rotation);
+  const position = new THREE.Vector3(), direction = new THREE.Vector3();
+  let last = '';
+  const update = (force = false) => {
+    const p = camera.getWorldPosition(position), f = camera.getWorldDirection(direction);
+    const pixels = typeof height === 'function' ? height() : height;
+    const view = { position: [p.x, p.y, p.z], forward: [f.x, f.y, f.z], fov: camera.fov,
+      height: pixels || 1, aspect: camera.aspect || 1 };
+    const key = JSON.stringify(view, (_k, v) => (typeof v === 'number' ? Number(v.toPrecision(5)) : v));
+    if (!force && key === last) return;
+    last = key;
+    stream.update(view);
+  };
+  update(true);
+  return { group, stream, tileset, update: () => update(), close: () => stream.close() };
 }

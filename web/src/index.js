@@ -10,3 +10,7 @@ export { plyBytes } from './ply.js';
 export { streamLayers } from './stream.js';
 export { decodePreview, findPreview } from './preview.js';
 export { upRotation, rotatePositions } from './orientation.js';
+export {
+  TilesetError, VIEW, parseTileset, selectTiles, visibleTiles, coversRoot, cameraInTileset,
+} from './tileset.js';
+export { TilesetStream } from './tilestream.js';

@@ -3,7 +3,8 @@
 // (PlayCanvas's glTF loader), so the same page and camera compare our decoder with those files.
 //
 // URL parameters:
-//   src=URL            the scene (.spc streams; .ply and .glb load whole)
+//   src=URL            the scene (.spc streams; .ply and .glb load whole; a tileset.json of .spc
+//                      nodes streams by view: see tileset.js for its budget= and sse=)
 //   maxLayer=K         fetch and show layers 0..K only (.spc)
 //   width=W&height=H   fixed canvas resolution (default: fill the window)
 //   cam=x,y,z&target=x,y,z&fov=DEG   camera, in the upright world (+Y up; default: framed on
@@ -32,6 +33,7 @@ import { browserDraco } from '../../src/draco-browser.js';
 import { createApp, frameWatcher } from './engine.js';
 import { rotatePositions, upRotation } from '../../src/orientation.js';
 import { SceneFraming, frameBounds } from './splats.js';
+import { showTileset, tilesetLines } from './tileset.js';
 
 const params = new URLSearchParams(location.search);
 const src = params.get('src');
@@ -69,6 +71,7 @@ const state = {
   // showFrom (the layer that replaces it), bytesLoaded, tDecoded, tShown, tDropped, droppedAtLayer}
   preview: null,
   previewError: null,  // why the file's preview is not shown ({code, name, message, line}), or null
+  tileset: null,  // a tileset's progress (tileset.js), or null
 };
 window.spcViewer = state;
 
@@ -79,6 +82,7 @@ function kindOf(url) {
   const path = new URL(url, location.href).pathname.toLowerCase();
   if (path.endsWith('.ply')) return 'ply';
   if (path.endsWith('.glb')) return 'glb';
+  if (path.endsWith('.json')) return 'tileset';
   return 'spc';
 }
 
@@ -125,6 +129,7 @@ function showProgress() {
     }
     if (state.previewError) lines.push(`preview not shown: ${state.previewError.line}`);
   }
+  if (state.kind === 'tileset') lines.push(...tilesetLines(state.tileset));
   const onScreen = state.showing === 'preview' ? `${state.preview.gaussians.toLocaleString('en')} (preview)`
     : state.gaussians.toLocaleString('en');
   lines.push(`Gaussians: ${onScreen}`);
@@ -460,7 +465,10 @@ async function main() {
   state.tStart = performance.now();
   if (state.kind === 'glb' && await embedsSpc(src)) state.kind = 'spc';  // `spcodec embed`
   if (state.kind === 'spc') await showSpc(app, rig, whenShown);
-  else await showAsset(app, rig, whenShown);
+  else if (state.kind === 'tileset') {
+    await showTileset({ app, pc, rig, whenShown, state, params, now, showProgress,
+      firstPicture: (t, bytes) => firstPicture(t, bytes, 0) });
+  } else await showAsset(app, rig, whenShown);
   state.tComplete = now();
   state.status = 'complete';
   showProgress();

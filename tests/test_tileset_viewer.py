@@ -1,0 +1,147 @@
+"""The viewer streaming a tileset by view (web/viewer/src/tileset.js, web/src/tileset.js), in
+headless Chromium, on a tileset ``spcodec.tiling`` encodes with many more Gaussians than the splat
+budget.
+
+The scene is long along x (a street, a corridor) and the camera stands inside it looking down +x:
+the tiles around and ahead of it are in view, those past its back are behind it. The page must put
+the whole scene on screen after a small share of the tileset's bytes (the issue's target: 2 %),
+bring the view to full detail (leaves) before any tile behind the camera arrives, and keep within
+the budget. Front and behind are judged here from the index's boxes, not from the page's own
+classes. Skips, saying why, without node, the npm packages or Chromium.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import urllib.parse
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import spcodec
+from spcodec.imaging.images import read_image
+
+from viewer_harness import VIEWER_PAGE, drive, missing_tools, serving
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
+
+STRETCH = 8.0
+"""The synthetic scene (a cube of side 1.6) is stretched this much along x."""
+CAMERA_X = -0.9
+"""Where the camera stands on the x axis (tileset coordinates), looking along +x."""
+BUDGET = 7500
+"""Gaussians drawn at most: the root's children and three of them refined, of 18,000 in all."""
+SSE = 40
+"""Screen-space error threshold (px) at the page's 240 px: near tiles refine, far ones stay coarse."""
+TARGET_SHARE = 0.02
+"""The issue's target: the whole scene on screen after at most 2 % of the tileset's bytes."""
+
+
+def require() -> None:
+    reason = missing_tools(True)
+    if reason:
+        pytest.skip(reason)
+
+
+@pytest.fixture(scope="module")
+def tileset(tmp_path_factory) -> Path:
+    """A 73-node tileset (branching 8, two levels below the root, 250 Gaussians a node)."""
+    require()
+    import torch
+
+    from spcodec.synthetic import make_scene
+    from spcodec.tiling import TilingConfig, build_tileset
+
+    folder = tmp_path_factory.mktemp("tileset")
+    cloud = make_scene(seed=3, curves=10, per_curve=300, blobs=13000, sh_degree=1).cloud
+    means = cloud.means.copy()
+    means[:, 0] *= STRETCH
+    spcodec.write_ply(folder / "street.ply", dataclasses.replace(cloud, means=means))
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        build_tileset(folder / "street.ply", folder / "street",
+                      TilingConfig(leaf_size=256, branching=8, workers=0))
+    finally:
+        torch.set_num_threads(threads)
+    return folder / "street"
+
+
+def tiles_of(index: dict) -> dict[str, dict]:
+    """Every tile of a tileset.json by content URI: its box's corners (lo, hi: the box's axes
+    are the scene's, as the tiler writes them), whether it is a leaf, its Gaussians."""
+    out: dict[str, dict] = {}
+    stack = [index["root"]]
+    while stack:
+        tile = stack.pop()
+        box = tile["boundingVolume"]["box"]
+        centre, half = np.array(box[:3]), np.abs(np.reshape(box[3:], (3, 3))).sum(axis=0)
+        out[tile["content"]["uri"]] = {"lo": centre - half, "hi": centre + half,
+                                       "leaf": not tile.get("children"),
+                                       "gaussians": tile["extras"]["spcodec"]["gaussians"]}
+        stack.extend(tile.get("children", []))
+    return out
+
+
+def test_the_whole_scene_comes_first_then_the_view_to_full_detail_then_what_is_behind(tileset, tmp_path):
+    index = json.loads((tileset / "tileset.json").read_text())
+    tiles = tiles_of(index)
+    root_uri = index["root"]["content"]["uri"]
+    node_bytes = {uri: (tileset / uri).stat().st_size for uri in tiles}
+    total = sum(node_bytes.values())
+    assert sum(t["gaussians"] for t in tiles.values()) > 2 * BUDGET
+    # the nodes store -y up, so the page's +Y-up world is the tileset's turned about x: on the x
+    # axis (y = z = 0) the two agree
+    assert spcodec.inspect(tileset / root_uri).to_json()["metadata"]["up"] == "-y"
+    query = {"src": f"/scenes/{tileset.name}/tileset.json", "width": 320, "height": 240,
+             "capture": 1, "cam": f"{CAMERA_X},0,0", "target": f"{CAMERA_X + 1},0,0", "fov": 50,
+             "budget": BUDGET, "sse": SSE}
+    with serving([tileset]) as base:
+        report = drive([{"url": f"{base}{VIEWER_PAGE}?{urllib.parse.urlencode(query)}",
+                         "captures": [{"when": "firstPicture", "path": str(tmp_path / "first.png")},
+                                      {"when": "complete", "path": str(tmp_path / "done.png")}]}])[0]
+    assert report["error"] is None, (report["error"], report["console"][-5:])
+    state = report["state"]
+    progress = state["tileset"]
+    assert state["status"] == "complete" and progress["errors"] == []
+    assert progress["tiles"] == len(tiles) and progress["bytes"] == total
+    arrivals = [a["id"] for a in progress["arrivals"]]
+    assert len(arrivals) == len(set(arrivals)) and arrivals[0] == root_uri
+    for a in progress["arrivals"]:
+        assert a["bytes"] == node_bytes[a["id"]]
+
+    # the whole scene on screen after the root alone: a small share of the tileset's bytes
+    share = progress["nodeBytesAtFullPicture"] / total
+    print(f"\nwhole scene on screen after {progress['nodeBytesAtFullPicture']} of {total} node "
+          f"bytes ({100 * share:.2f} %); with the index, {progress['bytesAtFullPicture']} of "
+          f"{total + (tileset / 'tileset.json').stat().st_size} bytes; {len(arrivals)} of "
+          f"{len(tiles)} nodes fetched, {progress['gaussiansShown']} Gaussians shown")
+    assert share <= TARGET_SHARE
+    assert progress["shownAtFullPicture"] == [root_uri]
+    assert state["bytesAtFirstPicture"] == progress["bytesAtFullPicture"]
+    picture = read_image(tmp_path / "first.png")  # the frame that first showed it
+    assert float((picture.max(axis=2) > 0.02).mean()) > 0.5, "the coarse root fills the view"
+
+    # within the budget, and far from the whole tileset
+    assert progress["gaussiansShown"] <= BUDGET
+    assert state["bytesLoaded"] < 0.75 * total
+
+    # front and behind, from the boxes: wholly past the camera's plane either way
+    front = {uri for uri, t in tiles.items() if t["lo"][0] > CAMERA_X}
+    behind = {uri for uri, t in tiles.items() if t["hi"][0] < CAMERA_X}
+    order = {uri: i for i, uri in enumerate(arrivals)}
+    front_leaves = [order[u] for u in front if u in order and tiles[u]["leaf"]]
+    behind_tiles = [order[u] for u in behind if u in order]
+    assert len(front_leaves) >= 8 and behind_tiles, (front_leaves, behind_tiles)
+    assert max(front_leaves) < min(behind_tiles), "a tile behind the camera came before the view's leaves"
+
+    # what the camera looks at is at full detail: every point of the view's axis up to 1.5 units
+    # ahead lies in a leaf that is on screen
+    shown = set(progress["shown"])
+    for t in np.arange(0.1, 1.5, 0.1):
+        point = np.array([CAMERA_X + t, 0.0, 0.0])
+        holders = [u for u, tile in tiles.items()
+                   if np.all(tile["lo"] <= point) and np.all(point <= tile["hi"])]
+        assert any(tiles[u]["leaf"] and u in shown for u in holders), (t, holders)

@@ -1,0 +1,132 @@
+/**
+ * The tileset streamer (src/tilestream.js) with a recording renderer: the index, then the root,
+ * then the nodes in the selection's order, real .spc files decoded; a parent hidden in the same
+ * step its children in view are shown; nothing behind the camera before the view is complete;
+ * tiles no longer needed dropped when the camera turns; a bad node reported, not fatal.
+ */
+import assert from 'node:assert/strict';
+import { test } from 'node:test';
+
+import { decode } from '../src/index.js';
+import { TilesetStream } from '../src/tilestream.js';
+import { VIEW } from '../src/tileset.js';
+import { fixture } from './helpers.js';
+import { quadtree } from './tileset-docs.js';
+
+const NODE = fixture('sh0-none-float16');
+const BASE = 'http://tiles.test/scene/';
+
+/** A fetch serving `doc` as tileset.json and NODE for every node, recording the URLs asked. */
+function server(doc, { broken = new Set() } = {}) {
+  const asked = [];
+  const fetchImpl = async (url) => {
+    asked.push(String(url));
+    const name = String(url).slice(BASE.length);
+    const body = name === 'tileset.json' ? new TextEncoder().encode(JSON.stringify(doc))
+      : broken.has(name) ? NODE.subarray(0, 100) : NODE;
+    return /** @type {Response} */ (/** @type {unknown} */ ({ ok: true, status: 200,
+      text: async () => new TextDecoder().decode(body), arrayBuffer: async () => body.slice().buffer }));
+  };
+  return { asked, fetchImpl };
+}
+
+/** A renderer that records what is on screen after each step. */
+function recorder() {
+  const visible = new Set();
+  const log = [];
+  let next = 0;
+  return {
+    visible, log,
+    renderer: {
+      add: (tile, cloud) => ({ id: tile.id, count: cloud.count, serial: next++ }),
+      show: (handle, on) => {
+        if (on) visible.add(handle.id);
+        else visible.delete(handle.id);
+        log.push([on ? 'show' : 'hide', handle.id]);
+      },
+      remove: (handle) => {
+        visible.delete(handle.id);
+        log.push(['remove', handle.id]);
+      },
+    },
+  };
+}
+
+const camera = (position, forward) => ({ position, forward, fov: 50, height: 600 });
+const IDENTITY_UP = '+y';  // the fixture stores no up axis: +y leaves the tileset frame as the world
+
+test('the root first, then the view to its leaves, then what lies behind', async () => {
+  const count = (await decode(NODE)).count;
+  const doc = quadtree({ depth: 2, gaussians: count, bytes: NODE.length });
+  const { asked, fetchImpl } = server(doc);
+  const screen = recorder();
+  const covered = [];
+  const stream = new TilesetStream(`${BASE}tileset.json`, screen.renderer, {
+    fetchImpl, up: IDENTITY_UP, threshold: 1e-9, budget: Infinity, concurrency: 3,
+    onShown: (_shown, covers) => covered.push(covers) });
+  await stream.open();
+  assert.deepEqual(asked, [`${BASE}tileset.json`, `${BASE}nodes/n.spc`]);
+  assert.deepEqual([...screen.visible], ['nodes/n.spc']);
+  assert.equal(covered[0], true, 'the root alone covers the scene');
+  stream.update(camera([0, 0, 0], [1, 0, 0]));
+  await stream.whenIdle();
+  const arrivals = stream.arrivals;
+  assert.equal(arrivals.length, 21);
+  assert.equal(new Set(arrivals.map((a) => a.id)).size, 21);
+  const lastInView = Math.max(...arrivals.map((a, i) => (a.view === VIEW.IN ? i : -1)));
+  const firstBehind = arrivals.findIndex((a) => a.view === VIEW.BEHIND);
+  assert.ok(firstBehind > 0 && lastInView < firstBehind, JSON.stringify(arrivals.map((a) => [a.id, a.view])));
+  assert.ok(arrivals.some((a) => a.leaf && a.view === VIEW.IN));
+  // the finished picture: every leaf on screen, nothing above them
+  assert.deepEqual([...screen.visible].sort(), doc.root.children.flatMap((c) => c.children.map((g) => g.content.uri)).sort());
+  assert.equal(stream.bytesLoaded, JSON.stringify(doc).length + 21 * NODE.length);
+  // the root went off screen in the same step its children in view came on
+  const rootOff = screen.log.findIndex(([what, id]) => what === 'hide' && id === 'nodes/n.spc');
+  assert.ok(rootOff > 0);
+  assert.equal(covered.at(-1), true);
+});
+
+test('turning the camera drops the tiles no longer needed and fetches the new view', async () => {
+  const count = (await decode(NODE)).count;
+  const doc = quadtree({ depth: 2, gaussians: count });
+  const { fetchImpl } = server(doc);
+  const screen = recorder();
+  // a budget for the root, its children and one grandchild group: the view refines, nothing else
+  const stream = new TilesetStream(`${BASE}tileset.json`, screen.renderer, {
+    fetchImpl, up: IDENTITY_UP, threshold: 1e-9, budget: 8 * count });
+  await stream.open();
+  stream.update(camera([-30, 0, -4], [1, 0, 0]));
+  await stream.whenIdle();
+  const before = new Set(stream.loaded.keys());
+  stream.update(camera([30, 0, 4], [-1, 0, 0]));
+  await stream.whenIdle();
+  const after = new Set(stream.loaded.keys());
+  const removed = screen.log.filter(([what]) => what === 'remove').map(([, id]) => id);
+  assert.ok(removed.length > 0);
+  for (const id of removed) assert.ok([...before].some((t) => t.id === id) && ![...after].some((t) => t.id === id));
+  assert.ok([...after].some((t) => !before.has(t)), 'the new view fetched tiles of its own');
+  assert.ok(stream.selection && stream.selection.gaussians <= 8 * count);
+  assert.ok([...screen.visible].length > 0);
+});
+
+test('a node that does not decode is reported and the tiles above it stay', async () => {
+  const count = (await decode(NODE)).count;
+  const doc = quadtree({ depth: 1, gaussians: count });
+  const { fetchImpl } = server(doc, { broken: new Set(['nodes/n2.spc']) });
+  const screen = recorder();
+  const errors = [];
+  const stream = new TilesetStream(`${BASE}tileset.json`, screen.renderer, {
+    fetchImpl, up: IDENTITY_UP, threshold: 1e-9, budget: Infinity,
+    onError: (error, tile) => errors.push([tile.id, error.code ?? error.name]) });
+  await stream.open();
+  stream.update(camera([0, 0, 30], [0, 0, -1]));
+  await stream.whenIdle();
+  assert.deepEqual(errors, [['nodes/n2.spc', 'truncated']]);
+  assert.ok(screen.visible.has('nodes/n.spc'), 'the root stays: one child in view is missing');
+});
+
+test('an index that is not a tileset fails open() with one line', async () => {
+  const { fetchImpl } = server({ asset: { version: '1.1' }, geometricError: 1 });
+  const stream = new TilesetStream(`${BASE}tileset.json`, recorder().renderer, { fetchImpl });
+  await assert.rejects(stream.open(), /tileset\.json has no root tile/);
+});

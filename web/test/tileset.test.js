@@ -1,0 +1,188 @@
+/**
+ * The tileset index and the selection by view (src/tileset.js), on synthetic tileset documents:
+ * one-line errors for bad documents, the budget held, the root always first, the view refined
+ * and fetched before what lies behind, refinement ending at leaves, REPLACE as tiles arrive.
+ */
+import assert from 'node:assert/strict';
+import { test } from 'node:test';
+
+import {
+  TilesetError, VIEW, cameraInTileset, coversRoot, parseTileset, screenSpaceError, selectTiles, visibleTiles,
+} from '../src/tileset.js';
+import { rng } from './helpers.js';
+import { quadtree } from './tileset-docs.js';
+
+/** A camera at `position` looking along `forward`, 50 degrees, 600 px high. */
+const camera = (position, forward, extra = {}) => ({ position, forward, fov: 50, height: 600, ...extra });
+
+test('a tileset document parses: tiles, parents, counts and spheres', () => {
+  const set = parseTileset(JSON.stringify(quadtree({ depth: 2 })));
+  assert.equal(set.tiles.length, 1 + 4 + 16);
+  assert.equal(set.root.id, 'nodes/n.spc');
+  assert.equal(set.root.children.length, 4);
+  assert.equal(set.byId.get('nodes/n03.spc')?.parent?.id, 'nodes/n0.spc');
+  assert.equal(set.gaussians, 21 * 1000);
+  assert.equal(set.bytes, 21 * 20000);
+  assert.ok(Math.abs(set.root.radius - Math.hypot(8, 1, 8)) < 1e-9);
+  assert.ok(set.tiles.every((t) => t.parent === null || set.tiles.indexOf(t.parent) < set.tiles.indexOf(t)));
+});
+
+/** @param {(doc: any) => void} change @param {RegExp} message */
+function rejects(change, message) {
+  const doc = quadtree({ depth: 1 });
+  change(doc);
+  assert.throws(() => parseTileset(doc), (error) => {
+    assert.ok(error instanceof TilesetError, String(error));
+    assert.match(error.message, message);
+    assert.ok(!error.message.includes('\n'), 'one line');
+    return true;
+  });
+}
+
+test('a bad document gets one line naming the problem', () => {
+  assert.throws(() => parseTileset('{"asset":'), /tileset\.json is not JSON/);
+  assert.throws(() => parseTileset('[]'), /must be a JSON object/);
+  rejects((d) => { delete d.asset; }, /no asset\.version/);
+  rejects((d) => { d.asset.version = '2.0'; }, /asset\.version "2\.0"/);
+  rejects((d) => { d.geometricError = -1; }, /^geometricError must be a non-negative number/);
+  rejects((d) => { delete d.root; }, /no root tile/);
+  rejects((d) => { d.root.children[1].boundingVolume.box.pop(); }, /root\.children\[1\]\.boundingVolume\.box must be 12/);
+  rejects((d) => { d.root.children[0].boundingVolume = { sphere: [0, 0, 0, 1] }; }, /children\[0\]\.boundingVolume\.box/);
+  rejects((d) => { d.root.children[2].boundingVolume.box[4] = NaN; }, /children\[2\]\.boundingVolume\.box/);
+  rejects((d) => { d.root.refine = 'ADD'; }, /root\.refine is "ADD": only "REPLACE"/);
+  rejects((d) => { delete d.root.refine; }, /root\.refine is null/);
+  rejects((d) => { d.root.children[3].content.uri = d.root.children[0].content.uri; },
+    /children\[3\]\.content\.uri "nodes\/n0\.spc" names a second tile/);
+  rejects((d) => { delete d.root.children[0].content; }, /children\[0\]\.content\.uri must name/);
+  rejects((d) => { delete d.root.extras; }, /root\.extras\.spcodec is missing/);
+  rejects((d) => { d.root.extras.spcodec.gaussians = -3; }, /root\.extras\.spcodec\.gaussians must be a count, got -3/);
+  rejects((d) => { d.root.extras.spcodec.bytes = 1.5; }, /bytes must be a byte count/);
+  rejects((d) => { d.root.children = {}; }, /root\.children must be an array/);
+  rejects((d) => { d.root.children[0].geometricError = 'x'; }, /children\[0\]\.geometricError must be/);
+});
+
+test('a child without refine inherits REPLACE; a very deep document is refused, not a stack overflow', () => {
+  const doc = quadtree({ depth: 1 });
+  delete doc.root.children[0].refine;
+  assert.equal(parseTileset(doc).tiles.length, 5);
+  const deep = quadtree({ depth: 0 });
+  let tip = deep.root;
+  for (let i = 0; i < 100; i++) {
+    tip.children = [{ ...quadtree({ depth: 0 }).root, content: { uri: `nodes/${i}.spc` } }];
+    tip = tip.children[0];
+  }
+  assert.throws(() => parseTileset(deep), /nest deeper than 64 levels/);
+});
+
+test('the screen-space error follows the 3D Tiles formula and is 0 at leaves', () => {
+  const set = parseTileset(quadtree({ depth: 1 }));
+  const cam = camera([0, 0, 18], [0, 0, -1]);  // 10 units from the root's box (z reaches 8)
+  const expected = 2 * 600 / (2 * 10 * Math.tan(25 * Math.PI / 180));
+  assert.ok(Math.abs(screenSpaceError(set.root, cam) - expected) < 1e-9);
+  assert.equal(screenSpaceError(set.root.children[0], cam), 0);
+  assert.equal(screenSpaceError(set.root, camera([1, 0, 1], [0, 0, -1])), Infinity);  // inside
+});
+
+test('the budget is respected for any camera, and the root is always drawn and fetched first', () => {
+  const set = parseTileset(quadtree({ depth: 4 }));
+  const random = rng(7).next;
+  for (let trial = 0; trial < 300; trial++) {
+    const position = [0, 1, 2].map(() => (random() - 0.5) * 40);
+    const forward = [0, 1, 2].map(() => random() - 0.5);
+    const budget = Math.floor(random() * 40000);
+    const threshold = 1 + random() * 40;
+    const s = selectTiles(set, camera(position, forward), { budget, threshold });
+    assert.equal(s.fetch[0], set.root);
+    const drawn = s.draw.reduce((n, t) => n + t.gaussians, 0);
+    assert.equal(drawn, s.gaussians);
+    if (budget >= set.root.gaussians) assert.ok(drawn <= budget, `${drawn} > ${budget}`);
+    else assert.deepEqual(s.draw, [set.root]);
+    // the draw tiles cover the scene (REPLACE never leaves a hole) and none is refined
+    assert.ok(coversRoot(set.root, new Set(s.draw)));
+    assert.ok(s.draw.every((t) => !s.refined.has(t)));
+    // parents come before their children in the fetch order
+    const at = new Map(s.fetch.map((t, i) => [t, i]));
+    for (const t of s.fetch) if (t.parent) assert.ok(at.get(t.parent) < at.get(t), t.id);
+    // a tile refines only past the threshold, into every child
+    for (const t of s.refined) {
+      assert.ok(screenSpaceError(t, camera(position, forward)) > threshold);
+      assert.ok(t.children.every((c) => at.has(c)));
+    }
+  }
+});
+
+test('tiles in view are fetched before tiles beside, and those before tiles behind the camera', () => {
+  const set = parseTileset(quadtree({ depth: 4 }));
+  const cam = camera([0, 0, 0], [1, 0, 0]);  // in the middle, looking along +x
+  const s = selectTiles(set, cam, { budget: Infinity });
+  const views = s.fetch.map((t) => s.seen.get(t)?.view);
+  assert.deepEqual(views, [...views].sort((a, b) => a - b));
+  const inView = s.fetch.filter((t) => s.seen.get(t)?.view === VIEW.IN);
+  const behind = s.fetch.filter((t) => s.seen.get(t)?.view === VIEW.BEHIND);
+  assert.ok(inView.length > 10 && behind.length > 10);
+  // every tile wholly behind the camera's plane is classed behind; none in view lies there
+  for (const t of s.fetch) {
+    const back = t.centre[0] + Math.abs(t.box[3]) < 0;
+    if (back) assert.equal(s.seen.get(t)?.view, VIEW.BEHIND, t.id);
+  }
+  // a tile in view reaches in front of the camera (its sphere, which holds the box)
+  assert.ok(inView.every((t) => t.centre[0] + t.radius > 0));
+  // from outside the scene, the first leaf fetched is the one nearest the view's centre
+  const outside = camera([-20, 0, 3], [1, 0, 0]);
+  const far = selectTiles(set, outside, { budget: Infinity, threshold: 1e-9 });
+  const leaves = far.fetch.filter((t) => !t.children.length);
+  const offsets = leaves.map((t) => far.seen.get(t)?.offset ?? NaN);
+  assert.equal(offsets[0], Math.min(...offsets));
+});
+
+test('the place the camera looks at reaches its leaves first; refinement stops at leaves', () => {
+  const set = parseTileset(quadtree({ depth: 3 }));
+  const cam = camera([-7, 0, 0], [1, 0, 0]);
+  const s = selectTiles(set, cam, { budget: Infinity, threshold: 1e-9 });
+  // with no budget and any error too large, every leaf is drawn, nothing below them
+  assert.equal(s.draw.length, 64);
+  assert.ok(s.draw.every((t) => t.children.length === 0));
+  assert.equal(s.refined.size, 1 + 4 + 16);
+  // a small budget refines the tiles in a narrow view and leaves the rest coarse
+  const narrow = camera([-12, 0, -4], [1, 0, 0], { fov: 20, aspect: 1 });
+  const tight = selectTiles(set, narrow, { budget: 14000 });
+  assert.ok(tight.gaussians <= 14000);
+  const deepest = Math.max(...tight.draw.map((t) => t.level));
+  assert.equal(deepest, 3, 'the budget reaches leaves');
+  assert.ok([...tight.refined].every((t) => tight.seen.get(t)?.view === VIEW.IN), 'refined where the camera looks');
+  assert.ok(tight.draw.some((t) => t.level < deepest && tight.seen.get(t)?.view !== VIEW.IN), 'coarse elsewhere');
+});
+
+test('REPLACE as tiles arrive: a parent stays until its children in view are in', () => {
+  const set = parseTileset(quadtree({ depth: 2 }));
+  // a narrow view from beyond one edge: two of the root's children in it, two beside it
+  const cam = camera([-4, 0, 9], [0, 0, -1], { fov: 10, aspect: 1 });
+  const s = selectTiles(set, cam, { budget: Infinity, threshold: 1e-9 });
+  const loaded = new Set([set.root]);
+  const show = () => visibleTiles(s, (t) => loaded.has(t));
+  assert.deepEqual(show(), [set.root]);
+  const first = set.root.children.filter((c) => s.seen.get(c)?.view === VIEW.IN);
+  const rest = set.root.children.filter((c) => s.seen.get(c)?.view !== VIEW.IN);
+  assert.deepEqual([first.length, rest.length], [2, 2]);
+  loaded.add(first[0]);
+  assert.deepEqual(show(), [set.root], 'one child of two in view is not enough');
+  first.forEach((c) => loaded.add(c));
+  const shown = new Set(show());
+  assert.ok(!shown.has(set.root) && first.every((c) => shown.has(c)), 'children in view replace the root');
+  assert.ok(rest.every((c) => !shown.has(c)));
+  rest.forEach((c) => loaded.add(c));
+  assert.ok(coversRoot(set.root, new Set(show())));
+  // nothing loaded at all: nothing shown, no error
+  assert.deepEqual(visibleTiles(s, () => false), []);
+});
+
+test('a camera in the drawn world is turned back into the tileset frame', () => {
+  const q = [1, 0, 0, 0];  // 180 degrees about x: the -y up rotation
+  const world = camera([1, 2, 3], [0, 0, -1]);
+  const local = cameraInTileset(world, q);
+  assert.deepEqual(local.position.map((v) => Math.round(v * 1e9) / 1e9), [1, -2, -3]);
+  assert.deepEqual(local.forward.map((v) => Math.round(v * 1e9) / 1e9), [0, 0, 1]);
+  assert.throws(() => selectTiles(parseTileset(quadtree({ depth: 1 })), camera([0, 0, 0], [0, 0, 0])),
+    /forward vector has no direction/);
+  assert.throws(() => selectTiles(parseTileset(quadtree({ depth: 1 })), world, { budget: -1 }), /budget/);
+});

@@ -56,5 +56,7 @@ def tileset_document(parts: Partition, records: dict[str, dict]) -> dict:
 def write_tileset(out: Path, parts: Partition, records: dict[str, dict]) -> Path:
     """Write ``out/tileset.json`` atomically and return its path."""
     path = out / TILESET_FILE
-    atomic_write(path, json.dumps(tileset_document(parts, records), indent=1).encode())
+    # compact: a viewer fetches the index before any tile, and indenting doubled it
+    document = json.dumps(tileset_document(parts, records), separators=(",", ":"))
+    atomic_write(path, document.encode())
     return path

@@ -372,7 +372,8 @@ class QualityTarget(Sizing):
                 lo = mid
         self.allocated = curve[hi].patch_config(encoder.config)
         self.record["quality_target"] = {
-            "target_psnr": self.target, "precision": {"options": curve[hi].describe(), "curve_points": len(curve),
+            "target_psnr": self.target,
+            "precision": {"options": curve[hi].describe(), "curve_points": len(curve),
                           "chosen_point": hi, "psnr": round(judged[hi], 3),
                           "judged": {str(i): round(v, 3) for i, v in sorted(judged.items())},
                           "seconds": round(time.perf_counter() - start, 2)}}

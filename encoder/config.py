@@ -581,6 +581,10 @@ class EncoderConfig:
     #: their distance) reaches this many dB, again by choosing how many patch Gaussians survive
     #: (encoder/qualitycontrol.py; None: off). Exclusive with ``target_size``.
     target_psnr: float | None = None
+    #: Judge the written file at the end of a retrained or ``target_psnr`` encode, as
+    #: ``spcodec eval`` does (the stats' "quality"); False (``--no-eval``) saves that time, and
+    #: ``spcodec eval OUT.spc --reference IN.ply`` gives the same figures later.
+    evaluate: bool = True
     #: The sketch layer, a streaming viewer's first picture, ends within this share of the file
     #: (DECISIONS D-10):
     #: when it would not, the sketch clusters of least importance per Gaussian go to the patch

@@ -166,10 +166,12 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
         "seconds": times, **extra,
     }
     stats["sketch_error"] = sketch_error(data, cloud, source, stats["sketch_gaussians"])
-    if config.retrain is not None or config.target_psnr is not None:
+    if (config.retrain is not None or config.target_psnr is not None) and not config.evaluate:
+        stats["evaluation"] = {"skipped": True, "eval_options": eval_options(config, dataset)}
+    elif config.retrain is not None or config.target_psnr is not None:
         t = time.perf_counter()
         stage = progress("evaluate", None)
-        stats["quality"] = judge(data, cloud, config, dataset, control)
+        stats["quality"] = judge(data, cloud, config, dataset, control, progress)
         quality = stats["quality"]
         closer = "".join(f", {c['psnr']:.2f} dB at {c['distance']:g} of the distance"
                          for c in quality["closeups"])
@@ -180,22 +182,24 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
 
 
 def judge(data: bytes, original: GaussianCloud, config: EncoderConfig,
-          dataset: str | Path | None, control: RunControl | None) -> dict:
+          dataset: str | Path | None, control: RunControl | None,
+          progress: ProgressFactory = silent) -> dict:
     """Quality of the written file as ``spcodec eval`` measures it: against the dataset's test
     images at the low-pass retraining used (``eval --blur-variance`` gives the same figure), or
     against renders of the original at the held-out sampled views and their close-ups (with
     the encode's ``up`` and ``antialiased``, eval's defaults otherwise), so the two commands
-    report the same figures."""
+    report the same figures. ``progress`` shows each framing's bar and ETA."""
     device = control.device if control is not None else "auto"
     decoded = decode_layers(data).cloud
     if dataset is not None:
         low_pass = config.low_pass(dataset=True)  # the one it trained with
         report = evaluate_against_dataset(decoded, Path(dataset), EvalConfig(
-            downscale=config.retrain.downscale, device=device, blur_variance=low_pass))
+            downscale=config.retrain.downscale, device=device, blur_variance=low_pass,
+            progress=progress))
         against = f"the test images of {dataset} (low-pass {low_pass:g} px^2)"
     else:
         report = evaluate_against_reference(decoded, original, EvalConfig(
-            device=device, up=config.up, antialiased=config.antialiased))
+            device=device, up=config.up, antialiased=config.antialiased, progress=progress))
         against = "renders of the original at held-out views"
     doc = report.to_json()
     closeups = [{key: c[key] for key in ("distance", "psnr", "ssim", "width", "height")}
@@ -203,6 +207,15 @@ def judge(data: bytes, original: GaussianCloud, config: EncoderConfig,
     return {"psnr": doc["psnr"], "ssim": doc["ssim"], "lpips": doc["lpips"],
             "views": doc["views"], "width": doc["width"], "height": doc["height"],
             "closeups": closeups, "against": against}
+
+
+def eval_options(config: EncoderConfig, dataset: str | Path | None) -> list[str]:
+    """The ``spcodec eval OUT.spc`` options that measure what :func:`judge` would have (the
+    file stores ``up``): ``--reference INPUT`` is the caller's to add without a dataset."""
+    if dataset is not None:
+        return ["--dataset", str(dataset), "--downscale", str(config.retrain.downscale),
+                "--blur-variance", f"{config.low_pass(dataset=True):g}"]
+    return ["--antialiased"] if config.antialiased else []
 
 
 def refine_sketch(cloud: GaussianCloud, config: EncoderConfig, progress: ProgressFactory,

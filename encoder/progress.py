@@ -231,6 +231,10 @@ def print_summary(stats: dict, stream: TextIO | None = None) -> None:
         for close in quality.get("closeups", []):
             print_(f"    closer, at {close['distance']:g} of the distance: PSNR {close['psnr']:.2f} "
                   f"dB, SSIM {close['ssim']:.4f} ({close['width']}x{close['height']})")
+    skipped = stats.get("evaluation")
+    if skipped and skipped.get("skipped"):
+        command = skipped.get("command") or "spcodec eval OUT.spc --reference IN.ply"
+        print_(f"  quality: not evaluated (--no-eval); `{command}` measures it")
     total = sum(stats["seconds"].values())
     print_("  time: " + ", ".join(f"{k} {v:.1f} s" for k, v in stats["seconds"].items())
           + f" (total {total:.1f} s)")

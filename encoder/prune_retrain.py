@@ -12,13 +12,16 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from dataclasses import dataclass, field
+import warnings
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import torch
 
 from spcodec.cloud import GaussianCloud
+from spcodec.imaging.cameras import Camera
 from spcodec.imaging.importance import blend_weights
 from spcodec.imaging.render import RenderSettings, resolve_device
 from spcodec.imaging.training.checkpoint import Checkpointer, fingerprint
@@ -26,6 +29,7 @@ from spcodec.imaging.training.targets import Targets, check_targets, dataset_tar
 from spcodec.writer import WrittenFile
 
 from .config import EncoderConfig, RetrainConfig
+from .estimate import EvalShape, RunEstimate, duration, estimate_run
 from .nested import NestedEncoder, layer_priority, layers_of, nested_groups, prefix_ends, prefix_schedule
 from .patch import PatchEncoder, PatchEncoding, Quantized, quantized_cloud
 from .prune import kept_count, select
@@ -60,29 +64,51 @@ class PreparedTargets:
     device: torch.device
     psnr_input: float
     """PSNR of the input model against its targets (the mismatch check's figure)."""
-    seconds_per_render: float
-    """Mean time of one render of the input at a target view (distillation: all of them,
-    rendered twice; datasets: the check's one pass), what estimates of training time scale."""
+    estimate: RunEstimate
+    """How long the whole encode takes here, as printed first (training corrects it)."""
+
+
+@dataclass
+class TargetSource:
+    """Where the targets come from, known before any is rendered or read: the cameras (with
+    whether each is a close crop) and, with ``--dataset``, the loaded dataset."""
+
+    cameras: list[tuple[Camera, bool]]
+    dataset: object | None = None
 
 
 def prepare_targets(cloud: GaussianCloud, config: EncoderConfig, dataset: str | Path | None,
                     control: RunControl, progress: ProgressFactory,
                     times: dict[str, float]) -> PreparedTargets:
-    """Load or render the targets and check that they belong to ``cloud``."""
+    """Estimate the whole run (printed first), then load or render the targets and check that
+    they belong to ``cloud``."""
     t = time.perf_counter()
-    stage = progress("targets", None)
+    stage = progress("estimate", None)
     device = resolve_device(control.device)
-    targets = build_targets(cloud, config, dataset, device)
+    source = target_source(cloud, config, dataset)
+    background = DISTILLATION_BACKGROUND if dataset is None else _background(source.dataset)
+    estimate = estimate_run(cloud, config.retrain, source.cameras,
+                            config.render_settings(background, dataset is not None),
+                            device, config.patch.layers,
+                            evaluation_probe(cloud, config, source.dataset)
+                            if config.evaluate else None)
+    stage.done(estimate.line(config.retrain))
+    times["estimate"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    views = len(source.cameras)
+    stage = progress("targets", views if dataset is None else 2 * views)
+    targets = build_targets(cloud, config, source, device, lambda: stage.update(1))
     settings = config.render_settings(targets.background, targets.mode == "dataset")
-    checked = time.perf_counter()
-    psnr = check_targets(cloud, targets, settings, device, dataset)
-    per_render = (time.perf_counter() - checked) / max(len(targets.views), 1)
+    psnr = targets.psnr_model if targets.psnr_model is not None else \
+        check_targets(cloud, targets, settings, device, dataset, lambda: stage.update(1))
     stage.done(f"{len(targets.views)} {targets.mode} views, input at {psnr:.2f} dB")
     times["targets"] = time.perf_counter() - t
-    prepared = PreparedTargets(targets, settings, device, psnr, per_render)
-    if config.retrain is not None:
-        progress("estimate", None).done(estimate_line(config.retrain, prepared))
-    return prepared
+    return PreparedTargets(targets, settings, device, psnr, estimate)
+
+
+def _background(dataset) -> tuple[float, float, float]:
+    return tuple(float(c) for c in dataset.background)
 
 
 def scene_weights(cloud: GaussianCloud, config: EncoderConfig,
@@ -151,17 +177,20 @@ def encode_pruned_patch(cloud: GaussianCloud, sketch: SketchOutcome, patch: Gaus
         return PatchChoice(encoding, kept, {**stats, **sizing.stats()})
     checkpointer = None
     if control.checkpoint is not None:
+        # whether the end evaluates changes nothing trained: --resume may add or drop --no-eval
+        settings = {k: v for k, v in config.to_json().items() if k != "evaluate"}
         checkpointer = Checkpointer(Path(control.checkpoint), fingerprint(
-            cloud, config.to_json(), "" if dataset is None else str(Path(dataset).resolve())))
+            cloud, settings, "" if dataset is None else str(Path(dataset).resolve())))
     return _retrain(retrain, prepared.targets, writer, encoder, patch, kept, weights[kept],
-                    sizing, config, control, checkpointer, progress, times, stats)
+                    sizing, config, control, checkpointer, progress, times, stats,
+                    prepared.estimate)
 
 
 def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
              encoder: PatchEncoder, patch: GaussianCloud, kept: np.ndarray, weights: np.ndarray,
              sizing: Sizing, config: EncoderConfig, control: RunControl,
              checkpointer: Checkpointer | None, progress: ProgressFactory,
-             times: dict[str, float], stats: dict) -> PatchChoice:
+             times: dict[str, float], stats: dict, estimate: RunEstimate) -> PatchChoice:
     layers = encoder.config.layers
     layer_of = None  # nested: the layer of each survivor, fixed before training
     train_stats: dict = {"prune": retrain.prune}
@@ -182,10 +211,10 @@ def _retrain(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
     stage.fit_rows = sizing.snap_fit(writer, encoder)
 
     t = time.perf_counter()
-    clock = TrainingClock()
+    clock = TrainingClock((estimate.evaluation or 0.0) + estimate.fixed, estimate.step)
     report = progress("retrain", retrain.iterations)
     trained = stage.retrain(patch.subset(kept), train_stats,
-                            _meter(report, clock, retrain.finish_iterations))
+                            _meter(report, clock, retrain.finish_iterations, estimate))
     if stage.kept is not None:  # rate control dropped some when snapping started
         train_stats["fitted_when_snapping"] = {"from": len(kept), "to": len(stage.kept)}
         kept = kept[stage.kept]
@@ -262,77 +291,120 @@ def _prefix_psnr(stage: RetrainStage, trained: GaussianCloud, quantized: Quantiz
     return scores
 
 
-def build_targets(cloud: GaussianCloud, config: EncoderConfig, dataset: str | Path | None,
-                  device) -> Targets:
-    """Dataset training images, or renders of ``cloud`` at sampled training views."""
+def target_source(cloud: GaussianCloud, config: EncoderConfig, dataset: str | Path | None
+                  ) -> TargetSource:
+    """The target cameras: the dataset's training views, or views sampled around ``cloud`` and
+    close crops (cameras of the crop's pixels alone, :func:`~spcodec.imaging.views.close_crops`)."""
     views = config.retrain or _NO_RETRAIN
     if dataset is not None:
         from spcodec.imaging.datasets import load_dataset
-        return dataset_targets(load_dataset(dataset, downscale=views.downscale), device,
-                               views.max_views)
+        loaded = load_dataset(dataset, downscale=views.downscale)
+        chosen = loaded.train[:views.max_views] if views.max_views else loaded.train
+        return TargetSource([(v.camera, False) for v in chosen], loaded)
     from spcodec.imaging.views import close_crops, sample_views
     cameras = sample_views(cloud, views.views, resolution=(views.resolution, views.resolution),
                            split="train", up=config.up)
     crops = close_crops(cloud, views.close_views, views.close_distance, views.close_resolution,
                         views.close_crop, up=config.up) if views.close_views else []
-    return distillation_targets(cloud, cameras, config.render_settings(DISTILLATION_BACKGROUND),
-                                device, crops)
+    return TargetSource([(c, False) for c in cameras] + [(c, True) for c in crops])
 
 
-STEP_PER_TARGET_RENDER = 1.0
-"""A training step costs about this many renders of the input at a target view (forward and
-backward of the pruned patch, against a forward of the whole input): what the estimate printed
-before retraining scales the targets' rendering time by. Measured on guitar: 0.7 s a step, 0.7 s
-a target render, one torch thread."""
+def build_targets(cloud: GaussianCloud, config: EncoderConfig, source: TargetSource,
+                  device, on_view: Callable[[], None] | None = None) -> Targets:
+    """Dataset training images, or renders of ``cloud`` at ``source``'s cameras (``on_view``:
+    called after each view)."""
+    views = config.retrain or _NO_RETRAIN
+    if source.dataset is not None:
+        return dataset_targets(source.dataset, device, views.max_views, on_view)
+    return distillation_targets(cloud, [c for c, crop in source.cameras if not crop],
+                                config.render_settings(DISTILLATION_BACKGROUND), device,
+                                [c for c, crop in source.cameras if crop], on_view)
 
-EVALUATION_STEPS = 60
-"""The closing evaluation (8 views at 400x400 and 16 at 800x800, each of the file and the input)
-costs about this many training steps."""
+
+def evaluation_probe(cloud: GaussianCloud, config: EncoderConfig, dataset
+                     ) -> tuple[EvalShape, list[Camera], RenderSettings]:
+    """What the closing evaluation (:func:`.pipeline.judge`) renders, for the estimate: its
+    shape, one camera of each framing and the settings it renders with."""
+    from spcodec.imaging.evaluate import EvalConfig
+    from spcodec.imaging.views import ViewSamplingWarning, robust_bounds, sample_views
+
+    judged = EvalConfig()
+    if dataset is not None:
+        test = dataset.test[:judged.max_views] if judged.max_views else dataset.test
+        camera = (test or dataset.train)[0].camera
+        return (EvalShape(len(test), ((1.0, camera.width),)), [camera],
+                config.render_settings(_background(dataset), dataset=True))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ViewSamplingWarning)  # the evaluation itself says it
+        bounds = robust_bounds(cloud)
+        first = sample_views(cloud, judged.views, resolution=(judged.resolution,) * 2,
+                             split="eval", seed=judged.seed, up=config.up, bounds=bounds)[0]
+    zoom = judged.closeup_resolution / judged.resolution
+    framings = ((1.0, judged.resolution),) + tuple(
+        (d, judged.closeup_resolution) for d in judged.closeups)
+    cameras = [first] + [first.scaled(zoom).dollied(bounds.centre, d) for d in judged.closeups]
+    settings = RenderSettings(background=judged.background, antialiased=config.antialiased,
+                              blur_variance=judged.blur_variance)
+    return EvalShape(judged.views, framings), cameras, settings
+
+
+CORRECT_AFTER = 50
+"""Retraining steps after which their measured rate corrects the first estimate (one line)."""
 
 
 @dataclass
 class TrainingClock:
     """Times the training steps as they run, to tell how long every stage still to come takes
-    (the rest of this one, the later training stages, and the closing evaluation)."""
+    (the rest of this one, the later training stages, and ``after``: the seconds of work after
+    the last step, the closing evaluation's and the checks', as the first estimate put them).
+    ``after`` scales as the steps run faster or slower than the probe's ``probe_step`` (the
+    machine's load moves both alike)."""
 
-    started: float = field(default_factory=time.perf_counter)
+    after: float = 0.0
+    probe_step: float | None = None
+    first: float | None = None
+    """When the first step of this run ended (the rate counts the steps after it)."""
     steps: int = 0
 
+    def tick(self) -> None:
+        """One more step done."""
+        if self.first is None:
+            self.first = time.perf_counter()
+        else:
+            self.steps += 1
+
+    @property
+    def per_step(self) -> float:
+        """Seconds per step so far (NaN before two)."""
+        if not self.steps:
+            return float("nan")
+        return (time.perf_counter() - self.first) / self.steps
+
     def eta_all(self, left: int) -> float:
-        """Seconds for ``left`` more steps and the evaluation at the rate so far."""
-        self.steps += 1
-        per_step = (time.perf_counter() - self.started) / self.steps
-        return (left + EVALUATION_STEPS) * per_step
+        """Seconds for ``left`` more steps and the work after them at the rate so far."""
+        pace = self.per_step / self.probe_step if self.probe_step and self.steps else 1.0
+        return left * self.per_step + self.after * pace
 
 
-def estimate_line(retrain: RetrainConfig, prepared: PreparedTargets) -> str:
-    """The one line printed before retraining starts: how long it will take here, and how to
-    have a faster encode instead."""
-    step = prepared.seconds_per_render * STEP_PER_TARGET_RENDER
-    steps = retrain.iterations + retrain.finish_iterations
-    total = (steps + EVALUATION_STEPS) * step
-
-    def minutes(seconds: float) -> str:
-        return f"{seconds / 60:.0f} min" if seconds >= 90 else f"{seconds:.0f} s"
-
-    faster = ""
-    if retrain.iterations > 1000:
-        quick = (1000 + retrain.finish_iterations + EVALUATION_STEPS) * step
-        faster = f"; --iterations 1000 takes about {minutes(quick)} for about 1 dB less"
-    return (f"retraining takes about {minutes(total)} here ({retrain.iterations:,} + "
-            f"{retrain.finish_iterations:,} steps at ~{step:.2f} s){faster}; --no-retrain takes "
-            "seconds, for a larger file")
+def correction_line(clock: TrainingClock, estimate: RunEstimate, left: int) -> str:
+    """The first estimate corrected with the training steps' measured rate."""
+    return (f"estimate corrected: {clock.steps} steps measured at {clock.per_step:.2f} s each "
+            f"(the probe said {estimate.step:.2f} s): the rest of the encode takes about "
+            f"{duration(clock.eta_all(left))}")
 
 
-def _meter(stage, clock: TrainingClock, later: int = 0):
+def _meter(stage, clock: TrainingClock, later: int = 0, estimate: RunEstimate | None = None):
     """A step callback that moves a progress stage, shows loss and PSNR and the ETA of all that
-    is left (``later``: steps of the training stages after this one), and starts a resumed run
-    at its step."""
+    is left (``later``: steps of the training stages after this one), starts a resumed run
+    at its step, and after :data:`CORRECT_AFTER` steps says how ``estimate`` was off."""
     def on_step(report) -> None:
         if not on_step.seen and report.step > 1:
             stage.resumed(report.step - 1)
         on_step.seen = True
+        clock.tick()
         left = report.total - report.step + later
+        if estimate is not None and clock.steps == CORRECT_AFTER:
+            stage.note(correction_line(clock, estimate, left))
         stage.update(1, loss=report.loss, psnr=report.psnr, eta_all=clock.eta_all(left))
     on_step.seen = False
     return on_step

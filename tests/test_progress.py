@@ -138,3 +138,20 @@ def test_eval_quiet_and_quick_print_no_progress(capsys, monkeypatch, ply):
     assert _eval(ply, "--quiet") == 0
     out, err = capsys.readouterr()
     assert json.loads(out)["views"] == 2 and err == ""
+
+
+def test_the_summary_of_an_encode_without_evaluation_says_how_to_measure_it():
+    stats = {"gaussians": 10, "bytes": 100, "sketch_gaussians": 0, "patch_gaussians": 10,
+             "sketch": {}, "patch_layers": 1, "sections": {"PATCH_ATTRIBUTES": 60},
+             "seconds": {"retrain": 2.0}, "output": "o.spc",
+             "evaluation": {"skipped": True, "eval_options": [],
+                            "command": "spcodec eval o.spc --reference i.ply"}}
+    stream = io.StringIO()
+    progress.print_summary(stats, stream)
+    text = stream.getvalue()
+    assert "  quality: not evaluated (--no-eval); `spcodec eval o.spc --reference i.ply` " \
+        "measures it\n" in text
+    assert "quality: PSNR" not in text
+    stream = io.StringIO()
+    progress.print_summary({k: v for k, v in stats.items() if k != "evaluation"}, stream)
+    assert "quality" not in stream.getvalue()  # a --no-retrain encode is never judged

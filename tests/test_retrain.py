@@ -486,7 +486,7 @@ def test_unreadable_dataset_is_one_line_and_no_output(tmp_path, scene, capsys):
     code = main(["encode", str(ply), "-o", str(out), "--dataset", str(tmp_path / "data")])
     err = capsys.readouterr().err
     assert code == 1 and "transforms_train.json" in err
-    assert err.startswith("[1] targets ...\n") and err.count("\n") == 2  # fails before any work
+    assert err.startswith("[1] estimate ...\n") and err.count("\n") == 2  # fails before any work
     assert not out.exists() and not (tmp_path / "out.spc.ckpt").exists()
 
 

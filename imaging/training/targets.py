@@ -15,7 +15,7 @@ take ~2 MB each.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Callable, Literal
 
 import numpy as np
 import torch
@@ -52,6 +52,9 @@ class Targets:
     views: list[TargetView]
     background: tuple[float, float, float]
     mode: TargetMode
+    psnr_model: float | None = None
+    """Distillation: mean PSNR of the model the targets were rendered from, against them, taken
+    from those renders (what :func:`check_targets` measures, without drawing them again)."""
 
     @property
     def cameras(self) -> list[Camera]:
@@ -70,20 +73,34 @@ class Targets:
 
 
 def distillation_targets(original: GaussianCloud, cameras: list[Camera], settings: RenderSettings,
-                         device: torch.device, crops: list[Camera] = ()) -> Targets:
+                         device: torch.device, crops: list[Camera] = (),
+                         on_view: Callable[[], None] | None = None) -> Targets:
     """Renders of ``original`` at ``cameras`` (sampled "train" views) and at ``crops`` (close-up
-    crops) as targets."""
+    crops) as targets, each crop rendered as its own small camera (only its pixels).
+
+    The same renders give the figures :func:`check_targets` would take from a second pass over
+    the views (coverage, the model's PSNR against them): the targets are the model's renders, so
+    that pass would draw the same images again. ``on_view`` is called after each view."""
     params = GaussianParams.from_cloud(original, device)
-    views = []
+    views, alphas, psnrs = [], [], []
     with torch.no_grad():
         for camera, crop in [(c, False) for c in cameras] + [(c, True) for c in crops]:
-            image = render(params, camera, settings).image.clamp(0.0, 1.0)
+            result = render(params, camera, settings)
+            image = result.image.clamp(0.0, 1.0)
+            alphas.append(float(result.alpha.mean()))
+            psnrs.append(psnr_of(result.image, image))
             views.append(TargetView(camera, image.to(torch.float32), crop=crop))
-    return Targets(views, settings.background, "distillation")
+            if on_view is not None:
+                on_view()
+    _refuse_unseen(alphas)
+    return Targets(views, settings.background, "distillation",
+                   float(np.mean(psnrs)) if psnrs else None)
 
 
-def dataset_targets(dataset, device: torch.device, max_views: int | None = None) -> Targets:
-    """The training split of a loaded :class:`~spcodec.imaging.datasets.Dataset`."""
+def dataset_targets(dataset, device: torch.device, max_views: int | None = None,
+                    on_view: Callable[[], None] | None = None) -> Targets:
+    """The training split of a loaded :class:`~spcodec.imaging.datasets.Dataset` (``on_view``
+    is called after each image is read)."""
     chosen = dataset.train[:max_views] if max_views else dataset.train
     if not chosen:
         raise UsageError(f"dataset {dataset.root} has no training views")
@@ -93,17 +110,20 @@ def dataset_targets(dataset, device: torch.device, max_views: int | None = None)
         mask = view.valid_mask()
         views.append(TargetView(view.camera, image,
                                 None if mask is None else torch.from_numpy(mask).to(device)))
+        if on_view is not None:
+            on_view()
     background = tuple(float(c) for c in dataset.background)
     return Targets(views, background, "dataset")
 
 
 def check_targets(model: GaussianCloud, targets: Targets, settings: RenderSettings,
-                  device: torch.device, source: str | None = None) -> float:
+                  device: torch.device, source: str | None = None,
+                  on_view: Callable[[], None] | None = None) -> float:
     """Refuse targets whose cameras do not see ``model`` (a UsageError when it covers less than
     :data:`MIN_VISIBLE_ALPHA` of their pixels on average: nothing could be trained), and warn
     when dataset images and model look unrelated before any training (the evaluation's
     :func:`~spcodec.imaging.evaluate.warn_if_mismatched`). Returns the mean PSNR of ``model``
-    over the targets."""
+    over the targets. ``on_view`` is called after each view rendered."""
     from ..evaluate import warn_if_mismatched
 
     params = GaussianParams.from_cloud(model, device)
@@ -113,12 +133,19 @@ def check_targets(model: GaussianCloud, targets: Targets, settings: RenderSettin
             result = render(params, view.camera, settings)
             alphas.append(float(result.alpha.mean()))
             psnrs.append(psnr_of(result.image, view.image))
+            if on_view is not None:
+                on_view()
+    _refuse_unseen(alphas)
+    psnr = float(np.mean(psnrs))
+    if targets.mode == "dataset":
+        warn_if_mismatched(psnr, source)
+    return psnr
+
+
+def _refuse_unseen(alphas: list[float]) -> None:
+    """The UsageError of cameras that do not see the model (mean coverage ``alphas``)."""
     mean = float(np.mean(alphas)) if alphas else 0.0
     if mean < MIN_VISIBLE_ALPHA:
         raise UsageError(f"the training cameras do not see the model (it covers {mean:.2%} of "
                          "their pixels on average): are the dataset and the PLY of the same scene "
                          "and coordinate frame?")
-    psnr = float(np.mean(psnrs))
-    if targets.mode == "dataset":
-        warn_if_mismatched(psnr, source)
-    return psnr

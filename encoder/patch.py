@@ -41,7 +41,9 @@ def coded_attributes(cloud: GaussianCloud) -> dict[PatchAttribute, np.ndarray]:
         PatchAttribute.COLOR_DC: cloud.sh_dc.astype(np.float64),
     }
     for attr in PatchAttribute.for_sh_degree(cloud.sh_degree)[4:]:
-        out[attr] = cloud.sh_rest[:, attr.sh_slice, :].reshape(len(cloud), -1).astype(np.float64)
+        # the width, not -1: a patch of no Gaussians (all sketch) has no size to infer it from
+        rest = cloud.sh_rest[:, attr.sh_slice, :]
+        out[attr] = rest.reshape(len(cloud), attr.width).astype(np.float64)
     return out
 
 

@@ -228,3 +228,11 @@ def test_rate_control_without_retraining_renders_no_training_targets():
     result = encode(scene, dataclasses.replace(FAST, target_size=30_000))
     assert "targets" not in result.stats["seconds"] and "psnr_input" not in result.stats
     assert 30_000 * (1 - FIT_SLACK) <= len(result.data) <= 30_000
+
+
+def test_a_scene_that_is_all_one_sketch_curve_encodes():
+    """Every Gaussian on one curve: a trial of the file leaves the patch empty, whose SH columns
+    once failed to reshape (a tileset's small nodes met it); the file keeps every Gaussian."""
+    scene = make_scene(0, curves=1, per_curve=50, blobs=0, sh_degree=1).cloud
+    result = encode(scene)
+    assert len(spcodec.decode(result.data)) == len(scene) == 50

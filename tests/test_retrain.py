@@ -249,8 +249,9 @@ def test_progress_estimates_up_front_resumes_where_it_stopped_and_times_every_st
     with pytest.raises(Interrupted):
         encode(scene, config, progress=StageReporter().stage, control=control)
     first = capsys.readouterr().err
-    estimate = next(line for line in first.splitlines() if "retraining takes about" in line)
-    assert "--no-retrain" in estimate and first.index(estimate) < first.index("] retrain ")
+    estimate = next(line for line in first.splitlines() if "this encode takes about" in line)
+    assert "--no-retrain" in estimate and "retraining + finish" in estimate
+    assert first.index(estimate) < first.index("] targets ") < first.index("] retrain ")
     encode(scene, config, progress=StageReporter().stage, control=RunControl(
         device="cpu", checkpoint=control.checkpoint, resume=True))
     err = capsys.readouterr().err

@@ -12,7 +12,7 @@ cameras (the orbit framing and half its distance, 512x512: :mod:`viewer_yardstic
 * **eval**: ``spcodec eval --reference`` (our framing, 400x400, and 1/2 distance at 800x800).
 
     python bench/bench_renderers.py ORIGINAL.ply NAME=DECODED.ply [...] [--up -y] [--antialiased]
-                                    [--cache /tmp/spcodec-yardstick] [--json out.json]
+                                    [--cache DIR] [--json out.json]
 """
 
 from __future__ import annotations

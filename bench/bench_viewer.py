@@ -33,7 +33,7 @@ sort and draw; the share of bytes at the first picture does not depend on it.
 
     python bench/bench_viewer.py [--scenes fourth_st guitar] [--kbps 20000] [--repeat 3]
                                  [--layer-kbps 2000 20000 100000] [--file guitar=/path/g.spc]
-                                 [--work /tmp/spcodec-bench-viewer] [--json out.json]
+                                 [--work DIR] [--json out.json]
 """
 
 from __future__ import annotations

@@ -78,6 +78,13 @@ def read_ply(path: str | os.PathLike | BinaryIO) -> GaussianCloud:
     names = set(vertex.dtype.names or ())
     if "chunk" in elements and set(_PACKED) <= names:
         return _read_compressed(elements, name)
+    return cloud_from_vertex(vertex, inria_rest_names(names, name))
+
+
+def inria_rest_names(names: set[str], name) -> list[str]:
+    """The ``f_rest_*`` properties of a vertex element with ``names``, in order, once it has
+    every 3DGS property and a whole SH degree of them (a FormatError naming ``name``
+    otherwise). Shared by :func:`read_ply` and chunked readers of the same layout."""
     missing = [p for p in _REQUIRED if p not in names]
     if missing:
         raise FormatError(f"{name}: PLY lacks the 3DGS properties {', '.join(missing)}",
@@ -90,6 +97,12 @@ def read_ply(path: str | os.PathLike | BinaryIO) -> GaussianCloud:
     if len(rest_names) % 3 or len(rest_names) // 3 not in SH_REST_COUNTS.values():
         raise FormatError(f"{name}: {len(rest_names)} f_rest properties match no SH degree 0..3",
                           "ply-invalid")
+    return rest_names
+
+
+def cloud_from_vertex(vertex: np.ndarray, rest_names: list[str]) -> GaussianCloud:
+    """The Gaussians of INRIA vertex records (a structured array or memory map; ``rest_names``
+    from :func:`inria_rest_names`)."""
 
     def cols(*props: str) -> np.ndarray:
         return np.stack([np.asarray(vertex[p], dtype=np.float32) for p in props], axis=1)

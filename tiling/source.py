@@ -16,11 +16,9 @@ from typing import Iterator
 
 import numpy as np
 
-from spcodec.cloud import SH_REST_COUNTS, GaussianCloud
-from spcodec.errors import FormatError, UsageError
-
-_REQUIRED = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
-             "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+from spcodec.cloud import GaussianCloud, sh_degree_for_rest_count
+from spcodec.errors import UsageError
+from spcodec.ply import cloud_from_vertex, inria_rest_names
 
 
 class SceneSource:
@@ -62,21 +60,11 @@ class MappedPly(SceneSource):
     """
 
     def __init__(self, vertex: np.memmap, name: str) -> None:
-        names = set(vertex.dtype.names or ())
-        missing = [p for p in _REQUIRED if p not in names]
-        if missing:
-            raise FormatError(f"{name}: PLY lacks the 3DGS properties {', '.join(missing)}",
-                              "ply-invalid")
-        rest = sorted((p for p in names if p.startswith("f_rest_")),
-                      key=lambda p: int(p[7:]) if p[7:].isdigit() else -1)
-        if [p[7:] for p in rest] != [str(i) for i in range(len(rest))] or \
-                len(rest) % 3 or len(rest) // 3 not in SH_REST_COUNTS.values():
-            raise FormatError(f"{name}: {len(rest)} f_rest properties match no SH degree 0..3",
-                              "ply-invalid")
+        rest = inria_rest_names(set(vertex.dtype.names or ()), name)
         self.filename, self.offset, self.dtype = vertex.filename, vertex.offset, vertex.dtype
         self.rest = rest
         self.count = len(vertex)
-        self.sh_degree = next(d for d, k in SH_REST_COUNTS.items() if 3 * k == len(rest))
+        self.sh_degree = sh_degree_for_rest_count(len(rest) // 3)
         self.mapped = True
 
     def _rows(self, start: int, stop: int) -> np.ndarray:
@@ -86,24 +74,12 @@ class MappedPly(SceneSource):
         return np.memmap(self.filename, self.dtype, mode="r",
                          offset=self.offset + start * self.dtype.itemsize, shape=(stop - start,))
 
-    @staticmethod
-    def _cols(rows: np.ndarray, props: list[str]) -> np.ndarray:
-        return np.stack([np.asarray(rows[p], np.float32) for p in props], axis=1)
-
     def positions(self, start: int, stop: int) -> np.ndarray:
-        return self._cols(self._rows(start, stop), ["x", "y", "z"])
+        rows = self._rows(start, stop)
+        return np.stack([np.asarray(rows[p], np.float32) for p in ("x", "y", "z")], axis=1)
 
     def chunk(self, start: int, stop: int) -> GaussianCloud:
-        rows = self._rows(start, stop)
-        n, k = len(rows), len(self.rest) // 3
-        rest = self._cols(rows, self.rest) if self.rest else np.zeros((n, 0), np.float32)
-        return GaussianCloud(  # f_rest is channel-major in the INRIA layout
-            means=self._cols(rows, ["x", "y", "z"]),
-            scales=self._cols(rows, ["scale_0", "scale_1", "scale_2"]),
-            quats=self._cols(rows, ["rot_0", "rot_1", "rot_2", "rot_3"]),
-            opacities=np.asarray(rows["opacity"], np.float32),
-            sh_dc=self._cols(rows, ["f_dc_0", "f_dc_1", "f_dc_2"]),
-            sh_rest=rest.reshape(n, 3, k).transpose(0, 2, 1))
+        return cloud_from_vertex(self._rows(start, stop), self.rest)
 
 
 class LoadedScene(SceneSource):

@@ -241,3 +241,16 @@ export function fakeGlb(spc, padding = 16) {
   file.set(spc, bin + 8 + padding);
   return file;
 }
+
+/** A fake three.js for the Spark loaders: Groups that keep what is added (and drop what is
+ * removed) and the rotation they are given, and a Vector3 a camera can be read through. */
+export const fakeThree = {
+  Group: class {
+    name = '';
+    children = /** @type {any[]} */ ([]);
+    quaternion = { xyzw: /** @type {number[]} */ ([]), set(...xyzw) { this.xyzw = xyzw; } };
+    add(...objects) { this.children.push(...objects); }
+    remove(object) { this.children = this.children.filter((c) => c !== object); }
+  },
+  Vector3: class { x = 0; y = 0; z = 0; },
+};

@@ -13,7 +13,7 @@ import { fileURLToPath } from 'node:url';
 
 import { loadSpc } from '../loaders/spark.js';
 import { decode, upRotation } from '../src/index.js';
-import { expectedPly, fakeServer, fixture } from './helpers.js';
+import { expectedPly, fakeServer, fakeThree, fixture } from './helpers.js';
 
 /** Every SH degree, an empty sketch and empty patch layers, gzip, Draco, one-layer files. */
 const FIXTURES = ['sh0-none-float16', 'sh1-zstd-float32', 'sh2-empty-sketch', 'sh2-zlib-draco',
@@ -21,16 +21,6 @@ const FIXTURES = ['sh0-none-float16', 'sh1-zstd-float32', 'sh2-empty-sketch', 's
 const SH_C0 = 0.28209479177387814;
 const BANDS = [[0, 3], [3, 8], [8, 15]];  // SH coefficients [first, end) of bands 1, 2, 3
 const EXAMPLES = join(dirname(fileURLToPath(import.meta.url)), '..', 'examples', 'node_modules');
-
-/** A fake three.js: Groups that keep what is added and the rotation they are given. */
-const fakeThree = {
-  Group: class {
-    name = '';
-    children = /** @type {unknown[]} */ ([]);
-    quaternion = { xyzw: /** @type {number[]} */ ([]), set(...xyzw) { this.xyzw = xyzw; } };
-    add(...objects) { this.children.push(...objects); }
-  },
-};
 
 /** A fake Spark module whose encoders record their arguments, by the array they write into. */
 function fakeSpark() {

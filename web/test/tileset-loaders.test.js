@@ -10,7 +10,7 @@ import { test } from 'node:test';
 import { loadTileset as loadPlayCanvas } from '../loaders/playcanvas.js';
 import { loadTileset as loadSpark } from '../loaders/spark.js';
 import { decode } from '../src/index.js';
-import { fixture } from './helpers.js';
+import { fakeThree, fixture } from './helpers.js';
 import { quadtree } from './tileset-docs.js';
 
 const NODE = fixture('sh0-none-float16');
@@ -93,18 +93,6 @@ test('PlayCanvas: a camera is required', async () => {
   await assert.rejects(loadPlayCanvas(app, /** @type {any} */ (pc), URL_, /** @type {any} */ ({})),
     /needs \{ camera \}/);
 });
-
-/** A fake three.js with Groups that add and remove, and a camera that reads its fields. */
-const fakeThree = {
-  Group: class {
-    name = '';
-    children = /** @type {any[]} */ ([]);
-    quaternion = { xyzw: /** @type {number[]} */ ([]), set(...xyzw) { this.xyzw = xyzw; } };
-    add(...objects) { this.children.push(...objects); }
-    remove(object) { this.children = this.children.filter((c) => c !== object); }
-  },
-  Vector3: class { x = 0; y = 0; z = 0; },
-};
 
 function fakeSpark() {
   return {

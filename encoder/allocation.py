@@ -275,8 +275,9 @@ def position_options(scene: GaussianCloud, rows: np.ndarray, config: EncoderConf
     settings = config.render_settings((0.0, 0.0, 0.0))
     framings = training_framings(scene, config, allocation)
     weight = allocation.framing_weights()
-    reference = {name: [render_image(GaussianParams.from_cloud(scene, device), c, settings)
-                        for c in cameras] for name, cameras in framings.items()}
+    original = GaussianParams.from_cloud(scene, device)  # once, not once per camera
+    reference = {name: [render_image(original, c, settings) for c in cameras]
+                 for name, cameras in framings.items()}
     rows = np.asarray(rows, np.int64)
     order = rows[np.argsort(morton_codes(scene.means[rows].astype(np.float64)), kind="stable")]
     out = []

@@ -225,20 +225,39 @@ def framing_distance(points: np.ndarray, target: np.ndarray, direction: np.ndarr
     return max(need, in_front, 1e-9)
 
 
+@dataclass(frozen=True)
+class CoverageDiscs:
+    """The Gaussians :func:`view_coverage` stamps, prepared once per cloud: a view search checks
+    dozens of cameras of the same cloud, and these arrays do not depend on the camera."""
+
+    means: np.ndarray
+    """(m, 3) float64 centres of the Gaussians at or above the opacity threshold."""
+    sigma: np.ndarray
+    """(m,) largest standard deviation of each."""
+    alpha: np.ndarray
+    """(m,) opacity, capped at 0.99 so its optical depth stays finite."""
+
+    @classmethod
+    def of(cls, cloud: GaussianCloud, min_opacity: float = 0.05) -> "CoverageDiscs":
+        alpha = np.minimum(_opacity(cloud), 0.99)
+        solid = alpha >= min_opacity
+        return cls(cloud.means.astype(np.float64)[solid],
+                   np.exp(cloud.scales.astype(np.float64)[solid].max(axis=1)), alpha[solid])
+
+
 def view_coverage(cloud: GaussianCloud, camera: Camera, bounds: SceneBounds | None = None,
-                  grid: int = COVERAGE_GRID, min_opacity: float = 0.05) -> ViewCoverage:
+                  grid: int = COVERAGE_GRID, min_opacity: float = 0.05,
+                  discs: CoverageDiscs | None = None) -> ViewCoverage:
     """Coverage diagnostics of one camera, from projected centres and scales (no renderer).
 
     Each Gaussian with opacity >= ``min_opacity`` in front of the camera is a disc of radius
     2 sigma_max * f / depth on a grid of ``grid`` cells across; the cells accumulate optical depth
-    -log(1 - alpha) and count as covered at an accumulated opacity of 0.5.
+    -log(1 - alpha) and count as covered at an accumulated opacity of 0.5. ``discs``: the same
+    Gaussians prepared by :meth:`CoverageDiscs.of` (with ``min_opacity``), to check many cameras.
     """
     bounds = bounds or robust_bounds(cloud)
-    alpha = np.minimum(_opacity(cloud), 0.99)
-    solid = alpha >= min_opacity
-    means = cloud.means.astype(np.float64)[solid]
-    sigma = np.exp(cloud.scales.astype(np.float64)[solid].max(axis=1))
-    alpha = alpha[solid]
+    discs = discs or CoverageDiscs.of(cloud, min_opacity)
+    means, sigma, alpha = discs.means, discs.sigma, discs.alpha
     uv, depth = camera.project(means)
     in_front = float((depth > 0).mean()) if len(depth) else 0.0
     cell = camera.width / grid
@@ -306,6 +325,7 @@ def sample_views_report(cloud: GaussianCloud, count: int, resolution: tuple[int,
         start += GOLDEN_ANGLE / 2.0
     sin_low, sin_high = math.sin(low), math.sin(high)
     views, failures = [], 0
+    discs = CoverageDiscs.of(cloud)
     for i in range(count):
         t = (i + 0.5) / count
         elevation = math.asin(sin_low + t * (sin_high - sin_low))
@@ -316,7 +336,7 @@ def sample_views_report(cloud: GaussianCloud, count: int, resolution: tuple[int,
         for d_el, d_az in _adjustments(elevation, (low + high) / 2.0):
             camera = _place(bounds, up_vector, elevation + d_el, azimuth + d_az, width, height,
                             fov_y, fill, jitter, name)
-            check = view_coverage(cloud, camera, bounds)
+            check = view_coverage(cloud, camera, bounds, discs=discs)
             if check.passes(min_coverage):
                 best = SampledView(camera, check, True)
                 break

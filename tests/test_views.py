@@ -13,6 +13,7 @@ from spcodec.cloud import GaussianCloud
 from spcodec.errors import UsageError
 from spcodec.imaging.cameras import Camera
 from spcodec.imaging.views import (
+    CoverageDiscs,
     ViewSamplingWarning,
     parse_up,
     robust_bounds,
@@ -180,6 +181,14 @@ def test_coverage_flags_views_of_empty_space_and_from_inside() -> None:
                             *RES, math.radians(50))
     check = view_coverage(cloud, inside)
     assert check.robust_in_front < 0.9 and not check.passes(0.15)
+
+
+def test_coverage_from_prepared_discs_equals_coverage_from_the_cloud() -> None:
+    """The view search prepares the discs once per cloud; every camera must see the same."""
+    cloud = _object_scene(1.0)
+    discs = CoverageDiscs.of(cloud)
+    for camera in sample_views(cloud, 3, RES, "train", up="+z"):
+        assert view_coverage(cloud, camera, discs=discs) == view_coverage(cloud, camera)
 
 
 def test_coverage_counts_wide_gaussians_whose_centres_are_off_the_grid() -> None:

@@ -47,7 +47,7 @@ def encode(original: GaussianCloud, preset: str, up: str, antialiased: bool, see
     from spcodec.encoder.config import EncoderConfig
     from spcodec.encoder.pipeline import encode as run
     from spcodec.encoder.presets import preset_config
-    from spcodec.encoder.retrain import RunControl
+    from spcodec.encoder.retraining.control import RunControl
     from spcodec.encoder.stages import silent
 
     config = dataclasses.replace(preset_config(preset, EncoderConfig(seed=seed)), up=up,

@@ -1,17 +1,17 @@
 """Quality that rises early: every layer prefix of a plain and a nested encode, as a viewer shows it.
 
-Each scene is encoded twice from the same input with the same retraining budget: plain
-retraining (all patch survivors trained for the full file, then split into layers by importance)
-and nested retraining (``--nested``: the layers are fixed first and every training step renders a
-prefix of them, so each prefix is a trained scene; encoder/nested.py). Every prefix that ends at a non-empty
-layer is decoded (``spcodec decode --max-layer K``) and rendered by the PlayCanvas engine at the
-orbit framing and at half its distance against the original (bench/viewer_yardstick.py). It
-prints one table per scene and the issue's targets: the longest prefix within 30 % of the bytes
-within 3 dB of the full file, the first non-empty layer complete within 10 % of the bytes and
-within 10 dB. A file with a preview (spec 1.1) leads with the preview's row and is judged as a
-viewer shows it: the preview from its arrival until its takeover layer. ``--rd`` adds the RD
-points of ``bench/bench_rd.py`` (files encoded for their size) to the figure, so a prefix can be
-read against a file made for its size.
+Each scene is encoded twice from the same input with the same retraining budget: plain retraining
+(all patch survivors trained for the full file, then split into layers by importance) and nested
+retraining (``--nested``: the layers are fixed first and every training step renders a prefix of
+them, so each prefix is a trained scene; encoder/retraining/nested.py). Every prefix that ends at
+a non-empty layer is decoded (``spcodec decode --max-layer K``) and rendered by the PlayCanvas
+engine at the orbit framing and at half its distance against the original
+(bench/viewer_yardstick.py). It prints one table per scene and the issue's targets: the longest
+prefix within 30 % of the bytes within 3 dB of the full file, the first non-empty layer complete
+within 10 % of the bytes and within 10 dB. A file with a preview (spec 1.1) leads with the
+preview's row and is judged as a viewer shows it: the preview from its arrival until its takeover
+layer. ``--rd`` adds the RD points of ``bench/bench_rd.py`` (files encoded for their size) to the
+figure, so a prefix can be read against a file made for its size.
 
     python bench/bench_layers.py --json layers.json [--scenes guitar fourth_st biker donut kacytran]
         [--iterations 3000] [--threads 1] [--patch-layers N]

@@ -29,7 +29,8 @@ from spcodec.encoder.config import RetrainConfig
 from spcodec.encoder.patch import PatchEncoder, quantized_cloud
 from spcodec.encoder.presets import preset_config
 from spcodec.encoder.prune import kept_count, select
-from spcodec.encoder.retrain import RetrainStage, RunControl, spread
+from spcodec.encoder.retraining.control import RunControl
+from spcodec.encoder.retraining.stage import RetrainStage, spread
 from spcodec.imaging.evaluate import EvalConfig, evaluate_against_reference
 from spcodec.imaging.importance import blend_weights
 from spcodec.imaging.render import GaussianParams, RenderSettings, render

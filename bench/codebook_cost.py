@@ -31,8 +31,8 @@ from sklearn.cluster import KMeans
 import spcodec.cli as cli
 from spcodec.attributes import PatchAttribute
 from spcodec.cloud import GaussianCloud
-from spcodec.encoder import retrain
 from spcodec.encoder.patch import Quantized, quantized_cloud
+from spcodec.encoder.retraining import stage as retrain
 
 RESIDUAL_ENTRIES = 256
 

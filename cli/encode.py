@@ -26,8 +26,8 @@ HELP = "encode a 3DGS PLY into an .spc bitstream"
 
 CHECKPOINT_EVERY = 500
 """``RunControl.checkpoint_every``, shown by --help (an encode without --checkpoint-every takes
-RunControl's own): it lives in encoder/retrain.py, which imports torch, and reading it from there
-would load torch for every command (a test keeps the two equal)."""
+RunControl's own): it lives in encoder/retraining/control.py, which imports torch, and reading it
+from there would load torch for every command (a test keeps the two equal)."""
 DEFAULT_THREADS = 1
 """Torch threads for encodes that render or train when --threads is not given: the CPU renderer
 runs many small tensor operations that more threads barely speed up, while two threads on this
@@ -278,7 +278,7 @@ def run_control(args: argparse.Namespace, retraining: bool):
 
     import torch
 
-    from spcodec.encoder.retrain import RunControl
+    from spcodec.encoder.retraining.control import RunControl
     from spcodec.imaging.training.checkpoint import checkpoint_path
 
     torch.set_num_threads(args.threads or DEFAULT_THREADS)

@@ -8,7 +8,7 @@ close crops, a few training steps of a pruned subset, a render at a sampled and 
 evaluation view), and the counts the configuration sets scale them: the first line a retrained
 encode prints is the whole run's estimate, stage by stage. The training probe stands in for the
 pruned patch before the sketch exists, and a shared machine's load moves every figure, so the
-first training steps correct it (one line, :func:`.prune_retrain.correction_line`).
+first training steps correct it (one line, :func:`.retraining.clock.correction_line`).
 """
 
 from __future__ import annotations

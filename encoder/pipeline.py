@@ -27,9 +27,10 @@ from spcodec.writer import EncodedScene, WriteOptions, WrittenFile
 from .categorize import categorize
 from .config import DEFAULT_POSITION_BITS, EncoderConfig, PatchConfig
 from .patch import PatchEncoder, PatchEncoding, retrained_position_bits
-from .prune_retrain import encode_pruned_patch, factor_trial, prepare_targets, scene_weights
+from .prune_retrain import encode_pruned_patch, factor_trial
 from .refine import RefineResult, refine
-from .retrain import RunControl
+from .retraining.control import RunControl
+from .retraining.targets import prepare_targets, scene_weights
 from .sizing import sizing_for
 from .sketch import SketchEncoder
 from .stages import ProgressFactory, SceneWriter, SketchOutcome, silent

@@ -19,7 +19,7 @@ from spcodec.preview import attach_preview_file, choose_takeover
 
 from .config import EncoderConfig
 from .presets import sized
-from .retrain import RunControl
+from .retraining.control import RunControl
 from .stages import ProgressFactory, silent
 
 PREVIEW_OVERHEAD = SectionEntry.sizeof() + PREVIEW_PREFIX_SIZE

@@ -1,8 +1,9 @@
 """What the encoder's stages hand each other, and how a stage reports progress.
 
-The pipeline (:mod:`.pipeline`) and the pruning/retraining stage (:mod:`.prune_retrain`) both
-work with the sketch stage's outcome and with a writer that turns any patch encoding into the
-file; these types live here, below both, so neither imports the other.
+The pipeline (:mod:`.pipeline`), the pruned patch stage (:mod:`.prune_retrain`) and retraining
+(:mod:`.retraining`) all work with the sketch stage's outcome, with a writer that turns any patch
+encoding into the file and with the patch they choose; these types live here, below them all, so
+none imports another for them.
 """
 
 from __future__ import annotations
@@ -52,6 +53,16 @@ class SketchOutcome:
     """Per encoded cluster, the indices of its input Gaussians in stored order."""
     patch_idx: np.ndarray
     """Sorted indices of the input Gaussians left to the patch."""
+    stats: dict
+
+
+@dataclass
+class PatchChoice:
+    """The pruned patch handed back to the pipeline."""
+
+    encoding: PatchEncoding
+    rows: np.ndarray
+    """Indices into the patch cloud of the encoded Gaussians (``encoding.order`` indexes these)."""
     stats: dict
 
 

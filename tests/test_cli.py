@@ -325,7 +325,7 @@ def test_help_shows_the_encoders_defaults():
     from spcodec.cli.encode import CHECKPOINT_EVERY
     from spcodec.encoder import config
     from spcodec.encoder.presets import PRESETS
-    from spcodec.encoder.retrain import RunControl
+    from spcodec.encoder.retraining.control import RunControl
     from spcodec.imaging.evaluate import EvalConfig
     from spcodec.imaging.render.settings import BLUR_VARIANCE
 

@@ -15,7 +15,7 @@ import spcodec
 from spcodec.cli import build_parser, main
 from spcodec.encoder import progress
 from spcodec.encoder.estimate import RunEstimate, duration
-from spcodec.encoder.prune_retrain import TrainingClock
+from spcodec.encoder.retraining.clock import TrainingClock
 from spcodec.errors import UsageError
 from spcodec.imaging.cameras import Camera
 from spcodec.imaging.render import GaussianParams, RenderSettings, render
@@ -93,10 +93,10 @@ def test_durations_read_at_the_precision_of_an_estimate():
 
 
 def test_the_training_clock_counts_from_the_end_of_the_first_step(monkeypatch):
-    from spcodec.encoder import prune_retrain
+    from spcodec.encoder.retraining import clock as clock_module
 
     now = [100.0]
-    monkeypatch.setattr(prune_retrain.time, "perf_counter", lambda: now[0])
+    monkeypatch.setattr(clock_module.time, "perf_counter", lambda: now[0])
     probed, unprobed = TrainingClock(after=30.0, probe_step=0.25), TrainingClock(after=30.0)
     for clock in (probed, unprobed):
         clock.tick()  # the first step: buffers allocated, not counted

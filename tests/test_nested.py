@@ -1,4 +1,4 @@
-"""Nested retraining (encoder/nested.py): layers fixed before training, every step training one
+"""Nested retraining (encoder/retraining/nested.py): layers fixed before training, every step training one
 layer prefix, and the layers kept as trained by rate control and the writer."""
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from spcodec.encoder.config import (
     RetrainConfig,
     geometric_fractions,
 )
-from spcodec.encoder.nested import NestedEncoder, layer_priority, layers_of, prefix_schedule
 from spcodec.encoder.pipeline import encode
+from spcodec.encoder.retraining.nested import NestedEncoder, layer_priority, layers_of, prefix_schedule
 from spcodec.synthetic import make_scene
 
 QUICK = RetrainConfig(iterations=45, finish_iterations=10, views=8, resolution=64,

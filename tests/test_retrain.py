@@ -1,4 +1,4 @@
-"""Retraining end to end (encoder/retrain.py, encoder/prune_retrain.py, ``spcodec encode``):
+"""Retraining end to end (encoder/retraining/, encoder/prune_retrain.py, ``spcodec encode``):
 better than no retraining at equal size, resumable to the same bytes, a frozen sketch, rate
 control, the reported PSNR, and one-line errors with no output."""
 
@@ -20,7 +20,6 @@ import torch
 
 import spcodec
 from spcodec.cli import main
-from spcodec.encoder import prune_retrain
 from spcodec.encoder.config import (
     DEFAULT_POSITION_BITS,
     RETRAINED_POSITION_BITS,
@@ -32,7 +31,8 @@ from spcodec.encoder.config import (
 )
 from spcodec.encoder.pipeline import encode
 from spcodec.encoder.ratecontrol import FIT_SLACK
-from spcodec.encoder.retrain import RunControl
+from spcodec.encoder.retraining import run as retraining_run
+from spcodec.encoder.retraining.control import RunControl
 from spcodec.encoder.stages import SceneWriter
 from spcodec.errors import Interrupted, UsageError
 from spcodec.imaging.cameras import Camera
@@ -185,7 +185,7 @@ def test_the_sketch_layer_of_a_retrained_file_is_capped_before_training(scene):
 
 def test_training_never_changes_the_frozen_tensors(scene):
     from spcodec.encoder.patch import PatchEncoder
-    from spcodec.encoder.retrain import RetrainStage
+    from spcodec.encoder.retraining.stage import RetrainStage
     from spcodec.imaging.training.targets import distillation_targets
 
     sketch = scene.subset(np.arange(0, 300))
@@ -333,7 +333,7 @@ def test_the_prefix_table_in_the_metadata_fits_inside_the_target(scene, monkeypa
         scored.append(len(trained))
         return table(len(trained))
 
-    monkeypatch.setattr(prune_retrain, "_prefix_psnr", long_table)
+    monkeypatch.setattr(retraining_run, "_prefix_psnr", long_table)
     target = 15_000
     result = encode(scene, dataclasses.replace(retrain_config(), target_size=target))
     assert len(result.data) <= target, result.stats["rate"]
@@ -408,7 +408,7 @@ def test_eval_reproduces_the_psnr_the_encoder_reported(tmp_path, scene, capsys):
 def test_distillation_renders_with_the_configured_low_pass(scene):
     """Targets and training render with ``EncoderConfig.blur_variance`` (the viewer's 0.075 px^2
     unless told): a larger low-pass would hide from training the texture a viewer shows."""
-    from spcodec.encoder.prune_retrain import prepare_targets
+    from spcodec.encoder.retraining.targets import prepare_targets
     from spcodec.encoder.stages import silent
 
     def targets(blur: float | None):
@@ -426,7 +426,7 @@ def test_distillation_renders_with_the_configured_low_pass(scene):
 def test_the_low_pass_follows_the_targets_unless_told(tmp_path, scene):
     """Distillation renders at the viewer's 0.075 px^2, a dataset's images train at INRIA's 0.3
     (the low-pass their model was made with), and ``blur_variance`` overrides both."""
-    from spcodec.encoder.prune_retrain import prepare_targets
+    from spcodec.encoder.retraining.targets import prepare_targets
     from spcodec.encoder.stages import silent
 
     train = sample_views(scene, 3, resolution=(32, 24), split="train")

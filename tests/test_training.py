@@ -21,14 +21,14 @@ from spcodec.encoder.prune import (
     prune_uniform,
     select,
 )
-from spcodec.encoder.quantaware import (
+from spcodec.encoder.ratecontrol import FIT_SLACK, TOLERANCE, fit_count, parse_size, plan_count
+from spcodec.encoder.retraining.quantaware import (
     CodebookGaussians,
     Snap,
     SnappedGaussians,
     coded_tensors,
     nearest_entry,
 )
-from spcodec.encoder.ratecontrol import FIT_SLACK, TOLERANCE, fit_count, parse_size, plan_count
 from spcodec.errors import UsageError
 from spcodec.imaging.training.checkpoint import Checkpointer, checkpoint_path, fingerprint
 from spcodec.imaging.training.loop import view_order

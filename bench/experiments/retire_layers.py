@@ -23,10 +23,10 @@ import sys
 import numpy as np
 import torch
 
-from spcodec.encoder import nested as NE
-from spcodec.encoder import prune_retrain as PR
-from spcodec.encoder import quantaware as QA
-from spcodec.encoder import retrain as RT
+from spcodec.encoder.retraining import nested as NE
+from spcodec.encoder.retraining import quantaware as QA
+from spcodec.encoder.retraining import run as PR
+from spcodec.encoder.retraining import stage as RT
 from spcodec.imaging.render import GaussianParams
 from spcodec.imaging.training import optim as OP
 

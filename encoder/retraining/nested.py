@@ -24,7 +24,7 @@ import numpy as np
 
 from spcodec.cloud import GaussianCloud
 
-from .patch import PatchEncoder, PatchEncoding, Quantized, split_layers
+from ..patch import PatchEncoder, PatchEncoding, Quantized, split_layers
 
 
 def nested_groups(weights: np.ndarray, encoder: PatchEncoder) -> list[np.ndarray]:

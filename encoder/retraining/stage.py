@@ -6,7 +6,7 @@ Order of work, as :class:`RetrainStage` runs it:
 1. **Targets**: dataset training images (``--dataset``) or renders of the original at sampled
    training views (distillation); see :mod:`spcodec.imaging.training.targets`.
 2. **Prune** the patch Gaussians to ``round(n / patch_downsample)``: by blend weight over the
-   training views (default) or uniformly at random (the paper's); see :mod:`.prune`.
+   training views (default) or uniformly at random (the paper's); see :mod:`spcodec.encoder.prune`.
 3. **Retrain** the survivors (positions, scales, rotations, opacities, SH at the scene's degree)
    with Adam at the 3DGS rates, loss 0.8 L1 + 0.2 D-SSIM, the sketch as the file stores it
    rendered but never changed. From ``snap_start`` on, they train through their codebooks
@@ -17,24 +17,21 @@ Order of work, as :class:`RetrainStage` runs it:
 5. **Order** the patch by blend weight in the whole scene (sketch included, so what the sketch
    hides ranks low) for the layers.
 
-Long runs report progress, write checkpoints and stop cleanly on request (:class:`RunControl`).
+Long runs report progress, write checkpoints and stop cleanly on request
+(:class:`.control.RunControl`).
 """
 
 from __future__ import annotations
 
-import contextlib
-import threading
 import time
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable
 
 import numpy as np
 import torch
 
 from spcodec.attributes import PatchAttribute
 from spcodec.cloud import GaussianCloud
-from spcodec.errors import Interrupted, UsageError
+from spcodec.errors import Interrupted
 from spcodec.imaging.importance import blend_weights
 from spcodec.imaging.render import GaussianParams, RenderSettings
 from spcodec.imaging.training.checkpoint import Checkpointer
@@ -43,55 +40,15 @@ from spcodec.imaging.training.optim import FreeGaussians
 from spcodec.imaging.training.targets import Targets
 from spcodec.sections import Codebook
 
-from .config import RetrainConfig
-from .patch import PatchEncoder, Quantized, quantized_cloud
-from .prune import select
+from ..config import RetrainConfig
+from ..patch import PatchEncoder, Quantized, quantized_cloud
+from ..prune import select
+from .control import RunControl
 from .quantaware import CodebookGaussians, SnappedGaussians, with_positions
 
 RowFit = Callable[[GaussianCloud, Quantized, np.ndarray], "np.ndarray | None"]
 """Rate control's choice when snapping starts: given the Gaussians, their k-means quantization and
 importance, the rows to keep (sorted) or None to keep all."""
-
-
-@dataclass
-class RunControl:
-    """How a long encode runs; none of it changes the bytes written (so it is not in the
-    file's settings)."""
-
-    #: "auto" (CUDA when torch sees a GPU), "cpu" or "cuda[:N]".
-    device: str = "auto"
-    #: Checkpoint file (None: none is written) and how often it is rewritten, in optimizer steps.
-    #: It is removed when the encode completes.
-    checkpoint: Path | None = None
-    checkpoint_every: int = 500
-    #: Continue from the checkpoint instead of starting over.
-    resume: bool = False
-    #: Set to stop after the step in progress (a checkpoint is written first).
-    stop: threading.Event = field(default_factory=threading.Event)
-    #: Called after every optimizer step with the stage name ("retrain", "finish").
-    on_step: Callable[[str, StepReport], None] | None = None
-    #: How to resume, for the interruption message (the CLI fills in its command line).
-    resume_hint: str = "run the same encode again with resume enabled"
-    #: True while an optimization loop runs (it then stops cleanly on ``stop``); a Ctrl-C handler
-    #: aborts at once otherwise, since there is nothing to save.
-    stoppable: bool = False
-
-    def check_checkpoint(self) -> None:
-        """Fail before any work when resuming without a checkpoint, or when a fresh run would
-        overwrite one (the stage checks the fingerprint itself when it loads it)."""
-        if self.checkpoint is None:
-            if self.resume:
-                raise UsageError("resuming needs a checkpoint path")
-            return
-        Checkpointer(Path(self.checkpoint), "").load_check(self.resume)
-
-    @contextlib.contextmanager
-    def stoppable_section(self) -> Iterator[None]:
-        self.stoppable = True
-        try:
-            yield
-        finally:
-            self.stoppable = False
 
 
 class RetrainStage:
@@ -119,7 +76,7 @@ class RetrainStage:
         #: What the quantization cost when snapping was to start, and whether it did.
         self.snap_decision: dict | None = None
         #: Nested retraining: which prefix each training step renders (step -> count of the
-        #: model's first Gaussians, None: all; encoder/nested.py). None: every step, all.
+        #: model's first Gaussians, None: all; :mod:`.nested`). None: every step, all.
         self.visible: Callable[[int], int | None] | None = None
 
     # ---------------------------------------------------------------------------- pruning

@@ -23,7 +23,7 @@ from .config import EncoderConfig
 from .patch import PatchEncoder
 from .prune import kept_count, select
 from .retraining.control import RunControl
-from .retraining.run import retrain_patch
+from .retraining.run import RetrainRun, retrain_patch
 from .retraining.targets import PreparedTargets
 from .sizing import Sizing, pruned_file
 from .stages import PatchChoice, ProgressFactory, SceneWriter, SketchOutcome
@@ -89,6 +89,6 @@ def encode_pruned_patch(cloud: GaussianCloud, sketch: SketchOutcome, patch: Gaus
         settings = {k: v for k, v in config.to_json().items() if k != "evaluate"}
         checkpointer = Checkpointer(Path(control.checkpoint), fingerprint(
             cloud, settings, "" if dataset is None else str(Path(dataset).resolve())))
-    return retrain_patch(retrain, prepared.targets, writer, encoder, patch, kept, weights[kept],
-                    sizing, config, control, checkpointer, progress, times, stats,
-                    prepared.estimate)
+    run = RetrainRun(config, prepared.targets, writer, encoder, sizing, control, checkpointer,
+                     progress, times, prepared.estimate)
+    return retrain_patch(run, patch, kept, weights[kept], stats)

@@ -18,6 +18,7 @@ against earlier layers that had moved, never caught up (docs/LOG.md 15).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -90,3 +91,42 @@ def prefix_schedule(ends: list[int], seed: int, full_share: float) -> Callable[[
             return None
         return int(shorter[rng.integers(len(shorter))])
     return visible
+
+
+@dataclass(frozen=True)
+class NestedLayers:
+    """Nested retraining's layers, fixed before training, and how training draws their prefixes:
+    what :class:`~.stage.RetrainStage` is built with instead of having a schedule set on it.
+
+    ``ends`` are where the layers end among the survivors put in layer order (:meth:`plan`)."""
+
+    ends: list[int]
+    seed: int
+    full_share: float
+
+    @classmethod
+    def plan(cls, weights: np.ndarray, encoder: PatchEncoder, seed: int, full_share: float
+             ) -> tuple[NestedLayers, np.ndarray]:
+        """The layers of the survivors ranked by ``weights`` and the order (indices into the
+        survivors) that puts them first layer first, as training and the file keep them."""
+        groups = nested_groups(weights, encoder)
+        order = np.concatenate(groups)
+        return cls(np.cumsum([len(g) for g in groups]).tolist(), seed, full_share), order
+
+    @property
+    def layer_of(self) -> np.ndarray:
+        """The layer of each survivor in layer order."""
+        return np.repeat(np.arange(len(self.ends)), np.diff([0, *self.ends]))
+
+    def encoder(self, encoder: PatchEncoder) -> NestedEncoder:
+        """``encoder``'s settings, layering by the trained layers (:class:`NestedEncoder`)."""
+        return NestedEncoder(encoder.config, seed=self.seed, jobs=encoder.jobs)
+
+    def training(self) -> Callable[[int], int | None]:
+        """The prefix each retraining step renders."""
+        return prefix_schedule(self.ends, self.seed, self.full_share)
+
+    def finishing(self, priority: np.ndarray, layers: int) -> Callable[[int], int | None]:
+        """The prefix each finish step renders: of the layers rate or quality control left
+        (``priority`` a :func:`layer_priority` score), drawn apart from training's."""
+        return prefix_schedule(prefix_ends(priority, layers), self.seed + 1, self.full_share)

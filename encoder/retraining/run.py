@@ -5,8 +5,8 @@ point, then the patch layers (nested or not) the file stores.
 
 from __future__ import annotations
 
-import dataclasses
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -14,104 +14,166 @@ from spcodec.cloud import GaussianCloud
 from spcodec.imaging.training.checkpoint import Checkpointer
 from spcodec.imaging.training.targets import Targets
 
-from ..config import EncoderConfig, RetrainConfig
+from ..config import EncoderConfig
 from ..estimate import RunEstimate
-from ..patch import PatchEncoder, Quantized, quantized_cloud
+from ..patch import PatchEncoder, PatchEncoding, Quantized, quantized_cloud
 from ..sizing import Sizing
 from ..stages import PatchChoice, ProgressFactory, SceneWriter
 from .clock import TrainingClock, meter
 from .control import RunControl
-from .nested import NestedEncoder, layer_priority, layers_of, nested_groups, prefix_ends, prefix_schedule
+from .nested import NestedLayers, layer_priority, layers_of
 from .stage import RetrainStage
 
 
-def retrain_patch(retrain: RetrainConfig, targets: Targets, writer: SceneWriter,
-             encoder: PatchEncoder, patch: GaussianCloud, kept: np.ndarray, weights: np.ndarray,
-             sizing: Sizing, config: EncoderConfig, control: RunControl,
-             checkpointer: Checkpointer | None, progress: ProgressFactory,
-             times: dict[str, float], stats: dict, estimate: RunEstimate) -> PatchChoice:
-    layers = encoder.config.layers
-    layer_of = None  # nested: the layer of each survivor, fixed before training
-    train_stats: dict = {"prune": retrain.prune}
-    if retrain.nested:  # every step trains one layer prefix (:mod:`.nested`)
-        groups = nested_groups(weights, encoder)
-        kept = kept[np.concatenate(groups)]
-        layer_of = np.repeat(np.arange(len(groups)), [len(g) for g in groups])
-        encoder = NestedEncoder(encoder.config, seed=config.seed, jobs=encoder.jobs)
-        retrain = dataclasses.replace(retrain, snap_start=1.0)  # rows must stay put
-        train_stats["nested_layers"] = np.cumsum([len(g) for g in groups]).tolist()
-    stage = RetrainStage(retrain, targets, writer.decoded_sketch(), encoder, config.seed,
-                         control, checkpointer,
-                         settings=config.render_settings(targets.background,
-                                                         targets.mode == "dataset"))
-    if layer_of is not None:
-        stage.visible = prefix_schedule(train_stats["nested_layers"], config.seed,
-                                        retrain.nested_full_share)
-    stage.fit_rows = sizing.snap_fit(writer, encoder)
+@dataclass
+class RetrainRun:
+    """What one retraining run works with, fixed for the run: the encode's settings, the targets,
+    the writer that makes its file, the (plain) patch encoder, the sizing it asks, how the run is
+    controlled and checkpointed, and where it reports progress, stage times and the first
+    estimate it corrects."""
 
+    config: EncoderConfig
+    targets: Targets
+    writer: SceneWriter
+    encoder: PatchEncoder
+    sizing: Sizing
+    control: RunControl
+    checkpointer: Checkpointer | None
+    progress: ProgressFactory
+    times: dict[str, float]
+    estimate: RunEstimate
+
+    def stage(self, encoder: PatchEncoder, nested: NestedLayers | None) -> RetrainStage:
+        """The retraining stage of this run, with ``encoder`` (nested: the one of ``nested``)."""
+        config, targets = self.config, self.targets
+        return RetrainStage(config.retrain, targets, self.writer.decoded_sketch(), encoder,
+                            config.seed, self.control, self.checkpointer,
+                            settings=config.render_settings(targets.background,
+                                                            targets.mode == "dataset"),
+                            fit_rows=self.sizing.snap_fit(self.writer, encoder), nested=nested)
+
+
+@dataclass
+class Survivors:
+    """The patch Gaussians a run carries from one step to the next: the cloud, its quantization
+    (None before quantizing), its importance and its rows in the patch cloud."""
+
+    cloud: GaussianCloud
+    quantized: Quantized | None
+    importance: np.ndarray | None
+    rows: np.ndarray
+
+    def subset(self, top: np.ndarray) -> Survivors:
+        return Survivors(self.cloud.subset(top),
+                         None if self.quantized is None else self.quantized.subset(top),
+                         None if self.importance is None else self.importance[top],
+                         self.rows[top])
+
+
+def retrain_patch(run: RetrainRun, patch: GaussianCloud, kept: np.ndarray, weights: np.ndarray,
+                  stats: dict) -> PatchChoice:
+    """Retrain the survivors ``kept`` of ``patch`` (ranked by ``weights``) and encode them as the
+    file's patch layers, as many as ``run.sizing`` lets through; ``stats`` gains the run's."""
+    retrain = run.config.retrain
+    train_stats: dict = {"prune": retrain.prune}
+    encoder, nested = run.encoder, None
+    if retrain.nested:  # every step trains one layer prefix (:mod:`.nested`)
+        nested, order = NestedLayers.plan(weights, encoder, run.config.seed,
+                                          retrain.nested_full_share)
+        kept, encoder = kept[order], nested.encoder(encoder)
+        train_stats["nested_layers"] = nested.ends
+    stage = run.stage(encoder, nested)
+    clock = TrainingClock((run.estimate.evaluation or 0.0) + run.estimate.fixed, run.estimate.step)
+    survivors = _train(run, stage, patch, kept, train_stats, clock)
+    survivors = _quantize(run, stage, encoder, survivors, nested)
+    encoding, survivors = _finish(run, stage, encoder, survivors, nested, train_stats, clock)
+    stats.update(run.sizing.stats(), retrain=train_stats)
+    if run.checkpointer is not None:
+        run.checkpointer.remove()
+    return PatchChoice(encoding, survivors.rows, stats)
+
+
+def _train(run: RetrainRun, stage: RetrainStage, patch: GaussianCloud, kept: np.ndarray,
+           train_stats: dict, clock: TrainingClock) -> Survivors:
+    """Retrain the rows ``kept`` of ``patch``; rate control may drop some when snapping starts."""
+    retrain = run.config.retrain
     t = time.perf_counter()
-    clock = TrainingClock((estimate.evaluation or 0.0) + estimate.fixed, estimate.step)
-    report = progress("retrain", retrain.iterations)
+    report = run.progress("retrain", retrain.iterations)
     trained = stage.retrain(patch.subset(kept), train_stats,
-                            meter(report, clock, retrain.finish_iterations, estimate))
+                            meter(report, clock, retrain.finish_iterations, run.estimate))
     if stage.kept is not None:  # rate control dropped some when snapping started
         train_stats["fitted_when_snapping"] = {"from": len(kept), "to": len(stage.kept)}
         kept = kept[stage.kept]
     report.done(f"{len(kept)} patch Gaussians, {train_stats['psnr_before']:.2f} -> "
                 f"{train_stats['psnr_retrained']:.2f} dB on the training views")
-    times["retrain"] = time.perf_counter() - t
+    run.times["retrain"] = time.perf_counter() - t
+    return Survivors(trained, None, None, kept)
 
+
+def _quantize(run: RetrainRun, stage: RetrainStage, encoder: PatchEncoder, survivors: Survivors,
+              nested: NestedLayers | None) -> Survivors:
+    """Quantize the trained survivors and keep those the sizing fits (nested: earlier layers
+    first, their importance then a layer priority)."""
     t = time.perf_counter()
-    report = progress("quantize", None)
-    quantized, importance = stage.quantize(trained)
-    if layer_of is not None:
-        importance = layer_priority(importance, layer_of, layers)
-    top = sizing.fit(writer, encoder, trained, quantized, importance)
+    report = run.progress("quantize", None)
+    quantized, importance = stage.quantize(survivors.cloud)
+    if nested is not None:
+        importance = layer_priority(importance, nested.layer_of, encoder.config.layers)
+    survivors = Survivors(survivors.cloud, quantized, importance, survivors.rows)
+    top = run.sizing.fit(run.writer, encoder, survivors.cloud, quantized, importance)
     if top is not None:  # the most important that fit the size, or the fewest that reach
-        trained, quantized, kept = trained.subset(top), quantized.subset(top), kept[top]
-        importance = importance[top]
-    entries = max((len(cb.entries) for cb in quantized.codebooks), default=0)
-    report.done(f"{len(kept)} Gaussians, codebooks of up to {entries} entries")
-    times["quantize"] = time.perf_counter() - t
+        survivors = survivors.subset(top)
+    entries = max((len(cb.entries) for cb in survivors.quantized.codebooks), default=0)
+    report.done(f"{len(survivors.rows)} Gaussians, codebooks of up to {entries} entries")
+    run.times["quantize"] = time.perf_counter() - t
+    return survivors
 
+
+def _finish(run: RetrainRun, stage: RetrainStage, encoder: PatchEncoder, survivors: Survivors,
+            nested: NestedLayers | None, train_stats: dict, clock: TrainingClock
+            ) -> tuple[PatchEncoding, Survivors]:
+    """The quantization-aware finish, the layers, and the trim that makes the file fit with
+    its per-prefix PSNR table."""
+    layers = encoder.config.layers
     t = time.perf_counter()
-    report = progress("finish", retrain.finish_iterations or None)
-    if layer_of is not None:  # the layers rate or quality control left
-        stage.visible = prefix_schedule(prefix_ends(importance, layers), config.seed + 1,
-                                        retrain.nested_full_share)
-    quantized, trained = stage.finish(trained, quantized, train_stats, meter(report, clock))
+    report = run.progress("finish", run.config.retrain.finish_iterations or None)
+    quantized, trained = stage.finish(survivors.cloud, survivors.quantized, train_stats,
+                                      meter(report, clock), priority=survivors.importance)
     ranked = stage.rank(trained)
-    importance = ranked if layer_of is None else \
-        layer_priority(ranked, layers_of(importance, layers), layers)
-    encoding = encoder.layer(trained, quantized, importance)
-    # Trim the least important until the file fits as written: the finish can grow it, and the
-    # metadata then records each prefix's PSNR, scored on what is left (without that table in
-    # the fit, kacytran at SPZ/16 came out 23 bytes over: docs/LOG.md 13.20).
-    prefix, scored = None, False
-    while True:
-        final = writer.with_prefix_psnr(prefix)
-        if len(trained) > 1 and sizing.overflows(final, encoding):
-            top = sizing.fit(final, encoder, trained, quantized, importance)
-            trained, quantized, kept = trained.subset(top), quantized.subset(top), kept[top]
-            importance = importance[top]
-            encoding = encoder.layer(trained, quantized, importance)
-            sizing.trimmed()
-        elif scored:
-            break
-        prefix = _prefix_psnr(stage, trained, quantized, encoding.order) \
-            if len(encoding.layers) > 1 else None
-        scored = True
-    if prefix:
-        train_stats["prefix_psnr"] = prefix
+    importance = ranked if nested is None else \
+        layer_priority(ranked, layers_of(survivors.importance, layers), layers)
+    survivors = Survivors(trained, quantized, importance, survivors.rows)
+    encoding, survivors = _fit_written(run, stage, encoder, survivors, train_stats)
     gain = train_stats.get("psnr_finished", train_stats["psnr_quantized"]) \
         - train_stats["psnr_quantized"]
     report.done(f"quantized {train_stats['psnr_quantized']:.2f} dB, finish {gain:+.2f} dB on the "
                 "training views")
-    times["finish"] = time.perf_counter() - t
-    stats.update(sizing.stats(), retrain=train_stats)
-    if checkpointer is not None:
-        checkpointer.remove()
-    return PatchChoice(encoding, kept, stats)
+    run.times["finish"] = time.perf_counter() - t
+    return encoding, survivors
+
+
+def _fit_written(run: RetrainRun, stage: RetrainStage, encoder: PatchEncoder,
+                 survivors: Survivors, train_stats: dict) -> tuple[PatchEncoding, Survivors]:
+    """Trim the least important until the file fits as written: the finish can grow it, and the
+    metadata then records each prefix's PSNR, scored on what is left (without that table in
+    the fit, kacytran at SPZ/16 came out 23 bytes over: docs/LOG.md 13.20)."""
+    s = survivors
+    encoding = encoder.layer(s.cloud, s.quantized, s.importance)
+    prefix, scored = None, False
+    while True:
+        final = run.writer.with_prefix_psnr(prefix)
+        if len(s.cloud) > 1 and run.sizing.overflows(final, encoding):
+            s = s.subset(run.sizing.fit(final, encoder, s.cloud, s.quantized, s.importance))
+            encoding = encoder.layer(s.cloud, s.quantized, s.importance)
+            run.sizing.trimmed()
+        elif scored:
+            break
+        prefix = _prefix_psnr(stage, s.cloud, s.quantized, encoding.order) \
+            if len(encoding.layers) > 1 else None
+        scored = True
+    if prefix:
+        train_stats["prefix_psnr"] = prefix
+    return encoding, s
 
 
 def _prefix_psnr(stage: RetrainStage, trained: GaussianCloud, quantized: Quantized,

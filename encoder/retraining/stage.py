@@ -23,6 +23,7 @@ Long runs report progress, write checkpoints and stop cleanly on request
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import Callable
 
@@ -44,6 +45,7 @@ from ..config import RetrainConfig
 from ..patch import PatchEncoder, Quantized, quantized_cloud
 from ..prune import select
 from .control import RunControl
+from .nested import NestedLayers
 from .quantaware import CodebookGaussians, SnappedGaussians, with_positions
 
 RowFit = Callable[[GaussianCloud, Quantized, np.ndarray], "np.ndarray | None"]
@@ -52,12 +54,20 @@ importance, the rows to keep (sorted) or None to keep all."""
 
 
 class RetrainStage:
-    """Prune, retrain and quantize the patch of one scene against ``targets``."""
+    """Prune, retrain and quantize the patch of one scene against ``targets``.
+
+    ``fit_rows`` is rate control's fit when snapping starts (None: keep every survivor);
+    ``nested`` the layers nested retraining fixed, whose prefixes the steps render (None: every
+    step renders all), with ``patch_encoder`` then the :class:`~.nested.NestedEncoder` of them.
+    """
 
     def __init__(self, config: RetrainConfig, targets: Targets, sketch: GaussianCloud,
                  patch_encoder: PatchEncoder, seed: int, control: RunControl,
                  checkpointer: Checkpointer | None = None,
-                 settings: RenderSettings | None = None) -> None:
+                 settings: RenderSettings | None = None, fit_rows: RowFit | None = None,
+                 nested: NestedLayers | None = None) -> None:
+        if nested is not None:  # snapping from the start: the rows must stay in their layers
+            config = dataclasses.replace(config, snap_start=1.0)
         self.config, self.targets, self.seed, self.control = config, targets, seed, control
         self.checkpointer = checkpointer
         self.device = _device(control.device)
@@ -67,17 +77,14 @@ class RetrainStage:
         self.importance_cameras = spread(targets.whole_cameras, config.importance_views)
         self.saved: dict | None = None
         self.trained: GaussianCloud | None = None
-        #: Rate control's fit when snapping starts (None: keep every survivor).
-        self.fit_rows: RowFit | None = None
+        self.fit_rows = fit_rows
+        self.nested = nested
         #: The codebooks snapping trained with (None: it never started) and the rows of the
         #: survivors still trained when retraining ended (None: all).
         self.snapped: list[Codebook] | None = None
         self.kept: np.ndarray | None = None
         #: What the quantization cost when snapping was to start, and whether it did.
         self.snap_decision: dict | None = None
-        #: Nested retraining: which prefix each training step renders (step -> count of the
-        #: model's first Gaussians, None: all; :mod:`.nested`). None: every step, all.
-        self.visible: Callable[[int], int | None] | None = None
 
     # ---------------------------------------------------------------------------- pruning
     def patch_weights(self, scene: GaussianCloud, patch_rows: np.ndarray) -> np.ndarray:
@@ -101,7 +108,8 @@ class RetrainStage:
         elif checkpointer is not None:
             checkpointer.refuse_stale()
         model = self._model(survivors)
-        loop = self._loop(model, self.config.iterations)
+        loop = self._loop(model, self.config.iterations,
+                          None if self.nested is None else self.nested.training())
         stats["psnr_before"] = loop.mean_psnr()
         start = time.perf_counter()
         saved = self.saved
@@ -138,16 +146,21 @@ class RetrainStage:
         return self.patch_encoder.quantize(trained, weights), importance
 
     def finish(self, trained: GaussianCloud, quantized: Quantized, stats: dict,
-               on_step: Callable[[StepReport], None] | None = None
-               ) -> tuple[Quantized, GaussianCloud]:
+               on_step: Callable[[StepReport], None] | None = None,
+               priority: np.ndarray | None = None) -> tuple[Quantized, GaussianCloud]:
         """The quantization-aware fine-tune of ``quantized`` (codebooks of ``trained``): returns
-        the tuned codebooks with their indices, and ``trained`` with the tuned positions."""
+        the tuned codebooks with their indices, and ``trained`` with the tuned positions. Nested,
+        ``priority`` is the layer priority of ``trained`` (:func:`~.nested.layer_priority`): the
+        steps render prefixes of the layers rate or quality control left."""
         cfg, encoder = self.config, self.patch_encoder
         model = CodebookGaussians(
             trained.means, quantized.codebooks, quantized.indices, trained.sh_degree, self.device,
             position_rate=cfg.rates.position_final * self.targets.extent,
             position_bits=encoder.config.stored_position_bits)
-        loop = self._loop(model, cfg.finish_iterations)
+        if self.nested is not None and priority is None:
+            raise ValueError("a nested finish needs the layer priority of the Gaussians")
+        loop = self._loop(model, cfg.finish_iterations, None if self.nested is None else
+                          self.nested.finishing(priority, encoder.config.layers))
         stats["psnr_quantized"] = loop.mean_psnr()
         if cfg.finish_iterations == 0:
             return quantized, trained
@@ -242,9 +255,12 @@ class RetrainStage:
                             for name, entries in state["entries"].items()]
         self.kept = None if state["kept"] is None else state["kept"].numpy()
 
-    def _loop(self, model, total: int) -> FitLoop:
+    def _loop(self, model, total: int, visible: Callable[[int], int | None] | None = None
+              ) -> FitLoop:
+        """A fitting loop over the targets; ``visible``: which prefix of the model each step
+        renders (step -> count of its first Gaussians, None: all; :mod:`.nested`)."""
         return FitLoop(model, self.targets, self.settings, total, seed=self.seed,
-                       frozen=self.frozen, stop=self.control.stop, visible=self.visible)
+                       frozen=self.frozen, stop=self.control.stop, visible=visible)
 
     def _run_stage(self, name: str, loop: FitLoop, state: Callable[[], dict],
                    after_step: Callable[[StepReport], None] | None = None) -> None:

@@ -93,8 +93,8 @@ def variants(original: GaussianCloud, result, decoded: GaussianCloud,
              grid_bits: tuple[int, ...] = ()):
     """(row name, cloud) for every budget row of one encode."""
     source = result.source_index
-    sketch = np.arange(result.stats["sketch_gaussians"])
-    patch = np.arange(result.stats["sketch_gaussians"], len(decoded))
+    sketch = np.arange(result.stats.sketch_gaussians)
+    patch = np.arange(result.stats.sketch_gaussians, len(decoded))
     yield "sketch positions (Draco)", hybrid(original, decoded, source, sketch, ("means",))
     yield "sketch attributes (polynomial models)", hybrid(original, decoded, source, sketch,
                                                           ATTRIBUTES)

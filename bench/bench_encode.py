@@ -65,7 +65,7 @@ def against_previous(names: list[str], repeat: int, codec: str) -> None:
             for label, config in configs.items():
                 start = time.perf_counter()
                 result = encode(cloud, config)
-                seconds = dict(result.stats["seconds"], total=time.perf_counter() - start)
+                seconds = dict(result.stats.seconds, total=time.perf_counter() - start)
                 for stage, value in seconds.items():
                     best[label][stage] = min(best[label].get(stage, value), value)
                 data[label] = result.data
@@ -103,7 +103,7 @@ def main() -> None:
         start = time.perf_counter()
         result = encode(cloud, EncoderConfig(codec=args.codec))
         wall = time.perf_counter() - start
-        st = result.stats
+        st = result.stats.to_json()
         k, size = st["sketch_gaussians"], st["bytes"]
         sketch_bytes = sum(v for key, v in st["sections"].items() if key.startswith("SKETCH"))
         draco = st["sections"].get("SKETCH_POSITIONS", 0)

@@ -80,7 +80,7 @@ def main() -> None:
             report = evaluate_against_reference(spcodec.decode(result.data), cloud, config)
             rows.append(dict(scene=name, codec=f"spcodec {preset}", bytes=len(result.data),
                              psnr=report.psnr, ssim=report.ssim, seconds=seconds, spz=spz_size,
-                             ply=ply.stat().st_size, sketch=result.stats["sketch_gaussians"]))
+                             ply=ply.stat().st_size, sketch=result.stats.sketch_gaussians))
         print(f"{name}: done", flush=True)
     print(f"renders: {args.views} held-out views of {args.resolution}x{args.resolution} "
           f"against the input PLY")

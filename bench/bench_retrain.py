@@ -31,6 +31,7 @@ from spcodec.encoder.presets import preset_config
 from spcodec.encoder.prune import kept_count, select
 from spcodec.encoder.retraining.control import RunControl
 from spcodec.encoder.retraining.stage import RetrainStage, spread
+from spcodec.encoder.statistics import RetrainStats
 from spcodec.imaging.evaluate import EvalConfig, evaluate_against_reference
 from spcodec.imaging.importance import blend_weights
 from spcodec.imaging.render import GaussianParams, RenderSettings, render
@@ -76,7 +77,7 @@ def quantize(args) -> None:
     stage = RetrainStage(config, targets, nothing, PatchEncoder(), 0, RunControl(device="cpu"))
     weights = stage.patch_weights(cloud, np.arange(len(cloud)))
     keep = select("importance", len(cloud), kept_count(len(cloud), args.factor), 0, weights)
-    trained = stage.retrain(cloud.subset(keep), {})
+    trained = stage.retrain(cloud.subset(keep), RetrainStats(config.prune))
 
     def psnr(model: GaussianCloud) -> float:
         params = GaussianParams.from_cloud(model)

@@ -91,7 +91,7 @@ def measure(stage: "retrain.RetrainStage", trained: GaussianCloud, quantized: Qu
 def main(argv: list[str]) -> int:
     output = Path(argv[argv.index("-o") + 1])
 
-    def finish(stage, trained, quantized, stats, on_step=None):
+    def finish(stage, trained, quantized, stats, on_step=None, priority=None):
         start = time.perf_counter()
         result = measure(stage, trained, quantized)
         result["seconds"] = round(time.perf_counter() - start, 1)

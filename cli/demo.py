@@ -59,7 +59,8 @@ def run_demo(out_dir: Path, seed: int = 0) -> int:
     decoded = decode_layers(result.data)
     elapsed = time.perf_counter() - start
     write_ply(out_dir / "demo.ply", decoded.cloud)
-    print_summary(dict(result.stats, input_bytes=(out_dir / "original.ply").stat().st_size,
+    print_summary(dict(result.stats.to_json(),
+                       input_bytes=(out_dir / "original.ply").stat().st_size,
                        output=str(out_dir / "demo.spc")))
     print(f"decoded in {elapsed * 1000:.1f} ms -> {out_dir / 'demo.ply'}")
     for layer in decoded.layers:

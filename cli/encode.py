@@ -207,10 +207,12 @@ def run(args: argparse.Namespace) -> int:
             reporter.interrupt()
             raise
     atomic_write(args.output, result.data)
-    stats = dict(result.stats, input_bytes=os.path.getsize(args.input), output=str(args.output))
-    if "evaluation" in stats:  # skipped: how to measure it later
-        stats["evaluation"] = dict(stats["evaluation"],
-                                   command=eval_command(args, stats["evaluation"]["eval_options"]))
+    stats = dict(result.stats.to_json(), input_bytes=os.path.getsize(args.input),
+                 output=str(args.output))
+    skipped = result.stats.evaluation
+    if skipped is not None:  # how to measure it later
+        stats["evaluation"] = dict(skipped.to_json(),
+                                   command=eval_command(args, skipped.eval_options))
     if args.stats:
         atomic_write(args.stats, (json.dumps(stats, indent=2) + "\n").encode())
     print_summary(stats, report_stream(args.output))

@@ -34,6 +34,7 @@ from .retraining.targets import prepare_targets, scene_weights
 from .sizing import sizing_for
 from .sketch import SketchEncoder
 from .stages import ProgressFactory, SceneWriter, SketchOutcome, silent
+from .statistics import Closeup, EncodeStats, Quality, SketchStats, SkippedEvaluation
 
 
 @dataclass
@@ -44,7 +45,7 @@ class EncodeResult:
     scene: EncodedScene
     source_index: np.ndarray
     """For each Gaussian of the decoded file (in file order), the index of the input Gaussian."""
-    stats: dict
+    stats: EncodeStats
 
 
 def validate_input(cloud: GaussianCloud) -> None:
@@ -106,7 +107,7 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
                 "up": config.up, "settings": config.to_json()}
     writer = SceneWriter(cloud.sh_degree, sketch.clusters, metadata,
                          WriteOptions(codec=codec, gzip=config.gzip))
-    extra: dict = {}
+    choice = None
     patch_encoder = PatchEncoder(config.patch, seed=config.seed)
     if prepared is None:
         t = time.perf_counter()
@@ -145,46 +146,46 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
         if sketch.clusters and sizing.drops_sketch(cloud, sketch, writer, choice.encoding):
             # the sketch's models cost more picture than their bytes buy as precision
             sketch = encode_sketch(cloud, None, found, config, progress, times)
-            sketch.stats["dropped_for_precision"] = True
+            sketch.stats.dropped_for_precision = True
             writer = dataclasses.replace(writer, sketch=[])
             again = sizing_for(config, cloud, control.device)
             again.inherit(sizing)
             choice = encode_pruned_patch(cloud, sketch, cloud, writer, config, prepared, weights,
                                          dataset, control, again, progress, times)
-        patch, rows, extra = choice.encoding, choice.rows, choice.stats
-        writer = writer.with_prefix_psnr(extra.get("retrain", {}).get("prefix_psnr"))
+        patch, rows = choice.encoding, choice.rows
+        writer = writer.with_prefix_psnr(None if choice.retrain is None else choice.retrain.prefix_psnr)
         written = _write(writer, patch, progress, times)
     data = written.data
     patch_idx = sketch.patch_idx[rows]
     source = np.concatenate(sketch.sources + [patch_idx[o] for o in patch.order]).astype(np.int64) \
         if (sketch.sources or len(patch_idx)) else np.zeros(0, np.int64)
 
-    stats = {
-        "gaussians": len(cloud), "sketch_gaussians": int(sum(map(len, sketch.sources))),
-        "patch_gaussians": int(len(patch_idx)), "patch_layers": len(writer.scene(patch).patch_layers),
-        "sketch": sketch.stats, "bytes": len(data), "sections": written.layout.section_bytes(),
-        "layer_ends": list(written.layout.stored_ends()),
-        "seconds": times, **extra,
-    }
-    stats["sketch_error"] = sketch_error(data, cloud, source, stats["sketch_gaussians"])
+    stats = EncodeStats(
+        gaussians=len(cloud), sketch_gaussians=int(sum(map(len, sketch.sources))),
+        patch_gaussians=int(len(patch_idx)), patch_layers=len(writer.scene(patch).patch_layers),
+        sketch=sketch.stats, bytes=len(data), sections=written.layout.section_bytes(),
+        layer_ends=list(written.layout.stored_ends()), seconds=times)
+    if choice is not None:
+        stats.psnr_input, stats.sizing, stats.retrain = \
+            choice.psnr_input, choice.sizing, choice.retrain
+    stats.sketch_error = sketch_error(data, cloud, source, stats.sketch_gaussians)
     if (config.retrain is not None or config.target_psnr is not None) and not config.evaluate:
-        stats["evaluation"] = {"skipped": True, "eval_options": eval_options(config, dataset)}
+        stats.evaluation = SkippedEvaluation(eval_options(config, dataset))
     elif config.retrain is not None or config.target_psnr is not None:
         t = time.perf_counter()
         stage = progress("evaluate", None)
-        stats["quality"] = judge(data, cloud, config, dataset, control, progress)
-        quality = stats["quality"]
-        closer = "".join(f", {c['psnr']:.2f} dB at {c['distance']:g} of the distance"
-                         for c in quality["closeups"])
-        stage.done(f"PSNR {quality['psnr']:.2f} dB, SSIM {quality['ssim']:.4f}{closer} against "
-                   f"{quality['against']}")
+        stats.quality = quality = judge(data, cloud, config, dataset, control, progress)
+        closer = "".join(f", {c.psnr:.2f} dB at {c.distance:g} of the distance"
+                         for c in quality.closeups)
+        stage.done(f"PSNR {quality.psnr:.2f} dB, SSIM {quality.ssim:.4f}{closer} against "
+                   f"{quality.against}")
         times["evaluate"] = time.perf_counter() - t
     return EncodeResult(data, writer.scene(patch), source, stats)
 
 
 def judge(data: bytes, original: GaussianCloud, config: EncoderConfig,
           dataset: str | Path | None, control: RunControl | None,
-          progress: ProgressFactory = silent) -> dict:
+          progress: ProgressFactory = silent) -> Quality:
     """Quality of the written file as ``spcodec eval`` measures it: against the dataset's test
     images at the low-pass retraining used (``eval --blur-variance`` gives the same figure), or
     against renders of the original at the held-out sampled views and their close-ups (with
@@ -203,11 +204,10 @@ def judge(data: bytes, original: GaussianCloud, config: EncoderConfig,
             device=device, up=config.up, antialiased=config.antialiased, progress=progress))
         against = "renders of the original at held-out views"
     doc = report.to_json()
-    closeups = [{key: c[key] for key in ("distance", "psnr", "ssim", "width", "height")}
+    closeups = [Closeup(c["distance"], c["psnr"], c["ssim"], c["width"], c["height"])
                 for c in doc.get("closeups", [])]
-    return {"psnr": doc["psnr"], "ssim": doc["ssim"], "lpips": doc["lpips"],
-            "views": doc["views"], "width": doc["width"], "height": doc["height"],
-            "closeups": closeups, "against": against}
+    return Quality(doc["psnr"], doc["ssim"], doc["lpips"], doc["views"], doc["width"],
+                   doc["height"], closeups, against)
 
 
 def eval_options(config: EncoderConfig, dataset: str | Path | None) -> list[str]:
@@ -246,8 +246,7 @@ def encode_sketch(cloud: GaussianCloud, refined: RefineResult | None, found: int
                   ) -> SketchOutcome:
     """Encode the refined clusters as sketch (nothing without them)."""
     if refined is None:
-        return SketchOutcome([], [], np.arange(len(cloud)),
-                             {"clusters_found": 0, "clusters_accepted": 0})
+        return SketchOutcome([], [], np.arange(len(cloud)), SketchStats(0, 0))
     t = time.perf_counter()
     stage = progress("sketch", len(refined.clusters))
     sketch = SketchEncoder(config.sketch, config.refine).encode(cloud, refined, stage.update)
@@ -256,11 +255,11 @@ def encode_sketch(cloud: GaussianCloud, refined: RefineResult | None, found: int
                f"(Draco step {sketch.step:.3g}, {sketch.stats['rejected_clusters']} clusters "
                f"and {sketch.stats['duplicates']} duplicates back to patch)")
     times["sketch"] = times.get("sketch", 0.0) + time.perf_counter() - t
-    stats = {"clusters_found": found, "clusters_accepted": len(refined.clusters),
-             "clusters_encoded": len(sketch.clusters), "draco_step": sketch.step,
-             "scene_diameter": sketch.diameter, **sketch.stats,
-             "refine": {"patch_by_reason": refined.stats.patch_by_reason,
-                        "splits": refined.stats.splits, "fits": refined.stats.fits}}
+    stats = SketchStats(found, len(refined.clusters), clusters_encoded=len(sketch.clusters),
+                        draco_step=sketch.step, scene_diameter=sketch.diameter,
+                        counts=dict(sketch.stats),
+                        refine={"patch_by_reason": refined.stats.patch_by_reason,
+                                "splits": refined.stats.splits, "fits": refined.stats.fits})
     return SketchOutcome(sketch.clusters, sketch.sources, patch_idx, stats)
 
 
@@ -310,7 +309,7 @@ def _cap_sketch(cloud: GaussianCloud, refined: RefineResult | None, found: int,
         moved += len(refined.patch) - before
         sketch = encode_sketch(cloud, refined, found, config, progress, times)
         writer = dataclasses.replace(writer, sketch=sketch.clusters)
-    sketch.stats["moved_to_patch_for_share"] = moved
+    sketch.stats.moved_to_patch_for_share = moved
     return sketch, writer
 
 

@@ -21,6 +21,7 @@ from .config import EncoderConfig
 from .presets import sized
 from .retraining.control import RunControl
 from .stages import ProgressFactory, silent
+from .statistics import EncodeStats, PreviewStats, RetrainStats
 
 PREVIEW_OVERHEAD = SectionEntry.sizeof() + PREVIEW_PREFIX_SIZE
 """Bytes a preview adds besides its file: its table-of-contents entry and payload prefix."""
@@ -63,37 +64,35 @@ def encode_with_preview(cloud: GaussianCloud, config: EncoderConfig, preview_siz
     scene_config = config if rest is None else dataclasses.replace(
         config, target_size=config.target_size - len(preview.data) - PREVIEW_OVERHEAD)
     scene = encode(cloud, scene_config, progress, source_name, dataset, control)
-    takeover = takeover_layer(scene.stats, preview.stats)
+    takeover = takeover_layer(scene.stats.retrain, len(scene.stats.layer_ends),
+                              preview.stats.retrain)
     written = attach_preview_file(scene.data, preview.data, takeover)
     data = written.data
-    stats = dict(scene.stats, bytes=len(data), sections=written.layout.section_bytes(),
-                 layer_ends=list(written.layout.stored_ends()),
-                 preview=preview_stats(preview.stats, takeover))
-    if "rate" in stats and config.target_size is not None:  # the target is the whole file's
+    stats = dataclasses.replace(scene.stats, bytes=len(data),
+                                sections=written.layout.section_bytes(),
+                                layer_ends=list(written.layout.stored_ends()),
+                                preview=preview_stats(preview.stats, takeover))
+    if "rate" in stats.sizing and config.target_size is not None:  # the target is the whole file's
         added = len(data) - len(scene.data)
-        stats["rate"] = dict(stats["rate"], target_bytes=config.target_size,
-                             predicted_bytes=stats["rate"]["predicted_bytes"] + added)
+        rate = stats.sizing["rate"]
+        stats.sizing = {**stats.sizing, "rate": dict(
+            rate, target_bytes=config.target_size, predicted_bytes=rate["predicted_bytes"] + added)}
     return EncodeResult(data, scene.scene, scene.source_index, stats)
 
 
-def preview_stats(stats: dict, takeover: int) -> dict:
+def preview_stats(stats: EncodeStats, takeover: int) -> PreviewStats:
     """What the encode statistics say of the preview."""
-    return {"bytes": stats["bytes"], "takeover_layer": takeover, "psnr": whole_psnr(stats),
-            "gaussians": stats["sketch_gaussians"] + stats["patch_gaussians"],
-            "quality": stats.get("quality")}
+    return PreviewStats(stats.bytes, takeover, whole_psnr(stats.retrain),
+                        stats.sketch_gaussians + stats.patch_gaussians, stats.quality)
 
 
-def whole_psnr(stats: dict) -> float | None:
+def whole_psnr(retrain: RetrainStats | None) -> float | None:
     """PSNR of a whole retrained file on its training views, as its encode measured it."""
-    retrain = stats.get("retrain", {})
-    prefix = retrain.get("prefix_psnr")
-    if prefix:
-        return prefix[-1]["psnr"]
-    return retrain.get("psnr_finished", retrain.get("psnr_quantized"))
+    return None if retrain is None else retrain.whole_psnr
 
 
-def takeover_layer(scene_stats: dict, preview_stats: dict) -> int:
-    """The first layer of the scene whose prefix scores at least the preview on the training
-    views (:func:`spcodec.preview.choose_takeover`)."""
-    return choose_takeover(scene_stats.get("retrain", {}).get("prefix_psnr"),
-                           len(scene_stats["layer_ends"]), whole_psnr(preview_stats))
+def takeover_layer(scene: RetrainStats | None, layers: int, preview: RetrainStats | None) -> int:
+    """The first of the scene's ``layers`` whose prefix scores at least the preview on the
+    training views, by what retraining measured of each (:func:`spcodec.preview.choose_takeover`)."""
+    return choose_takeover(None if scene is None else scene.prefix_psnr, layers,
+                           whole_psnr(preview))

@@ -10,6 +10,7 @@ retraining, which is why retraining is the default).
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 
@@ -56,7 +57,6 @@ def encode_pruned_patch(cloud: GaussianCloud, sketch: SketchOutcome, patch: Gaus
     patch encoder's importance without); ``prepared`` holds the targets (retraining only)."""
     retrain = config.retrain
     encoder = PatchEncoder(config.patch, seed=config.seed)
-    stats: dict = {} if prepared is None else {"psnr_input": prepared.psnr_input}
     weights = weights[sketch.patch_idx]
 
     t = time.perf_counter()
@@ -82,7 +82,7 @@ def encode_pruned_patch(cloud: GaussianCloud, sketch: SketchOutcome, patch: Gaus
             sizing.trimmed()
         stage.done(f"{len(kept)} Gaussians in {len(encoding.layers)} layers")
         times["patch"] = time.perf_counter() - t
-        return PatchChoice(encoding, kept, {**stats, **sizing.stats()})
+        return PatchChoice(encoding, kept, sizing=sizing.stats())
     checkpointer = None
     if control.checkpoint is not None:
         # whether the end evaluates changes nothing trained: --resume may add or drop --no-eval
@@ -91,4 +91,5 @@ def encode_pruned_patch(cloud: GaussianCloud, sketch: SketchOutcome, patch: Gaus
             cloud, settings, "" if dataset is None else str(Path(dataset).resolve())))
     run = RetrainRun(config, prepared.targets, writer, encoder, sizing, control, checkpointer,
                      progress, times, prepared.estimate)
-    return retrain_patch(run, patch, kept, weights[kept], stats)
+    choice = retrain_patch(run, patch, kept, weights[kept])
+    return dataclasses.replace(choice, psnr_input=prepared.psnr_input)

@@ -8,7 +8,7 @@ none imports another for them.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -18,6 +18,7 @@ from spcodec.decoder import decode_layers
 from spcodec.writer import EncodedScene, WriteOptions, WrittenFile, write_file
 
 from .patch import PatchEncoding
+from .statistics import RetrainStats, SketchStats
 
 ProgressFactory = Callable[[str, int | None], "Stage"]
 
@@ -53,7 +54,7 @@ class SketchOutcome:
     """Per encoded cluster, the indices of its input Gaussians in stored order."""
     patch_idx: np.ndarray
     """Sorted indices of the input Gaussians left to the patch."""
-    stats: dict
+    stats: SketchStats
 
 
 @dataclass
@@ -63,7 +64,11 @@ class PatchChoice:
     encoding: PatchEncoding
     rows: np.ndarray
     """Indices into the patch cloud of the encoded Gaussians (``encoding.order`` indexes these)."""
-    stats: dict
+    psnr_input: float | None = None
+    """PSNR of the input against the retraining targets (retraining only)."""
+    sizing: dict = field(default_factory=dict)
+    """What the sizing decided (:meth:`.sizing.Sizing.stats`)."""
+    retrain: RetrainStats | None = None
 
 
 @dataclass

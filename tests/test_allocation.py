@@ -112,7 +112,7 @@ def test_a_size_above_the_presets_keeps_every_gaussian_and_buys_precision(scene)
     middle = encode(scene, _config("balanced", target))
     assert target * (1 - 3 * FIT_SLACK) <= len(middle.data) <= target
     assert len(spcodec.decode(middle.data)) == len(scene)
-    precision = middle.stats["rate"]["precision"]
+    precision = middle.stats.rate["precision"]
     assert "options" in precision, precision
     finer = [a for a, o in precision["options"].items()
              if "entry_dim" in o and o["entry_dim"] < balanced_dims().get(a, 0)]
@@ -139,7 +139,7 @@ def test_a_size_below_the_presets_keeps_every_gaussian_only_where_that_renders_c
     target = int(len(balanced.data) * 0.85)
     result = encode(scene, _config("balanced", target))
     assert len(result.data) <= target
-    precision = result.stats["rate"]["precision"]
+    precision = result.stats.rate["precision"]
     measured = precision["training_view_psnr"]
     every = measured["every_gaussian"] > measured["pruned"]
     assert ("options" in precision) == every
@@ -149,7 +149,7 @@ def test_a_size_below_the_presets_keeps_every_gaussian_only_where_that_renders_c
         assert any(o["entries"] < 256 or o["entry_dim"] > balanced_dims().get(a, 0)
                    for a, o in precision["options"].items()), precision
     pruned = encode(scene, _config("balanced", int(len(balanced.data) * 0.3)))
-    assert "options" not in pruned.stats["rate"].get("precision", {})
+    assert "options" not in pruned.stats.rate.get("precision", {})
     assert len(spcodec.decode(pruned.data)) < len(scene)
 
 

@@ -24,7 +24,7 @@ FAST = EncoderConfig(patch=PatchConfig(kmeans_iterations=10, kmeans_samples=20_0
 
 def sketch_mask(result, n: int) -> np.ndarray:
     mask = np.zeros(n, bool)
-    mask[result.source_index[:result.stats["sketch_gaussians"]]] = True
+    mask[result.source_index[:result.stats.sketch_gaussians]] = True
     return mask
 
 
@@ -47,12 +47,12 @@ def test_every_gaussian_is_encoded_exactly_once_and_decodes():
     decoded = spcodec.decode(result.data)
     assert len(decoded) == len(scene.cloud) and decoded.is_finite()
     # Patch Gaussians keep their positions to within half a QUANT16 step.
-    k = result.stats["sketch_gaussians"]
+    k = result.stats.sketch_gaussians
     patch_src = result.source_index[k:]
     err = np.abs(decoded.means[k:] - scene.cloud.means[patch_src]).max()
     assert err < 1e-4
     # Sketch models meet the error the refinement promised, as measured on decoded Gaussians.
-    error = result.stats["sketch_error"]
+    error = result.stats.sketch_error
     assert error["position_rel_diameter"]["mean"] <= FAST.sketch.position_error * 1.2
     assert error["color_dc_abs"]["mean"] < 0.05
 
@@ -71,7 +71,7 @@ def test_scene_without_structure_is_all_patch_and_valid():
     blobs = make_scene(0, curves=0, blobs=3000).cloud
     assert len(blobs) == 3000
     result = encode(blobs, FAST)
-    assert result.stats["sketch_gaussians"] == 0
+    assert result.stats.sketch_gaussians == 0
     info = spcodec.inspect(result.data).to_json()
     assert info["layers"][0]["gaussians"] == 0 and len(spcodec.decode(result.data)) == 3000
     tiny = blobs.subset(rng.choice(3000, 5, replace=False))
@@ -86,12 +86,12 @@ def test_the_sketch_layer_is_capped_to_its_share_of_the_file():
     capped = encode(scene.cloud, dataclasses.replace(FAST, max_sketch_share=0.1))
 
     def first_share(result) -> float:
-        return result.stats["layer_ends"][0] / result.stats["bytes"]
+        return result.stats.layer_ends[0] / result.stats.bytes
 
-    assert first_share(free) > 0.15 and free.stats["sketch"]["moved_to_patch_for_share"] == 0
+    assert first_share(free) > 0.15 and free.stats.sketch.moved_to_patch_for_share == 0
     assert 0.0 < first_share(capped) <= 0.1
-    moved = capped.stats["sketch"]["moved_to_patch_for_share"]
-    assert moved > 0 and capped.stats["sketch_gaussians"] <= free.stats["sketch_gaussians"] - moved
+    moved = capped.stats.sketch.moved_to_patch_for_share
+    assert moved > 0 and capped.stats.sketch_gaussians <= free.stats.sketch_gaussians - moved
     assert len(spcodec.decode(capped.data)) == len(scene.cloud)
     assert np.array_equal(np.sort(capped.source_index), np.arange(len(scene.cloud)))
 
@@ -104,9 +104,9 @@ def test_a_target_size_caps_the_sketch_to_its_share_of_the_target():
     target = len(encode(scene.cloud, FAST).data) // 2
     free = encode(scene.cloud, dataclasses.replace(FAST, max_sketch_share=None, target_size=target))
     capped = encode(scene.cloud, dataclasses.replace(FAST, max_sketch_share=0.1, target_size=target))
-    assert free.stats["layer_ends"][0] > 0.3 * target
-    assert 0.0 < capped.stats["layer_ends"][0] <= 0.1 * target
-    assert capped.stats["sketch"]["moved_to_patch_for_share"] > 0
+    assert free.stats.layer_ends[0] > 0.3 * target
+    assert 0.0 < capped.stats.layer_ends[0] <= 0.1 * target
+    assert capped.stats.sketch.moved_to_patch_for_share > 0
     assert target * (1 - FIT_SLACK) <= len(capped.data) <= target
     assert len(spcodec.decode(capped.data)) < len(scene.cloud)  # pruned to fit, sketch and all
 
@@ -183,7 +183,7 @@ def test_real_scene_encode_decode(scene):
     decoded = spcodec.decode(result.data)
     assert len(decoded) == len(cloud) and decoded.is_finite()
     assert np.array_equal(np.sort(result.source_index), np.arange(len(cloud)))
-    assert result.stats["bytes"] < cloud.nbytes() / 5
+    assert result.stats.bytes < cloud.nbytes() / 5
     for layer in spcodec.inspect(result.data).to_json()["layers"]:  # every prefix decodes
         assert len(spcodec.decode(result.data[:layer["end_offset"]])) > 0 or layer["index"] == 0
 
@@ -210,7 +210,7 @@ def test_transparent_keeps_every_gaussian_as_patch_with_scalar_codebooks(tmp_pat
     assert config.patch.position_bits == 14
     result = encode(scene.cloud, config)
     decoded = spcodec.decode(result.data)
-    assert result.stats["sketch_gaussians"] == 0 and len(decoded) == len(scene.cloud)
+    assert result.stats.sketch_gaussians == 0 and len(decoded) == len(scene.cloud)
     order = result.source_index
     assert np.abs(decoded.opacities - scene.cloud.opacities[order]).max() < 0.05
     with pytest.raises(ValueError, match="never retrains"):
@@ -226,7 +226,7 @@ def test_rate_control_without_retraining_renders_no_training_targets():
     targets that only retraining uses."""
     scene = make_scene(3, blobs=1500).cloud
     result = encode(scene, dataclasses.replace(FAST, target_size=30_000))
-    assert "targets" not in result.stats["seconds"] and "psnr_input" not in result.stats
+    assert "targets" not in result.stats.seconds and result.stats.psnr_input is None
     assert 30_000 * (1 - FIT_SLACK) <= len(result.data) <= 30_000
 
 

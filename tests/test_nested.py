@@ -136,7 +136,7 @@ def test_a_nested_encode_stores_the_layers_fixed_before_training(scene):
     expected = [len(g) for g in split_layers(np.arange(sum(stored), dtype=np.float64),
                                              config.patch.layer_fractions, config.patch.layers)]
     assert stored == expected
-    prefix = result.stats["retrain"]["prefix_psnr"]
+    prefix = result.stats.retrain.prefix_psnr
     assert [p["layer"] for p in prefix] == [1, 2, 3] and prefix[-1]["psnr"] > prefix[0]["psnr"]
     stored_stats = spcodec.inspect(result.data).to_json()["metadata"]["stats"]
     assert stored_stats["prefix_psnr"] == prefix  # what a viewer reads to choose where to stop
@@ -153,13 +153,13 @@ def test_a_plain_retrained_encode_records_what_each_of_its_prefixes_shows(scene)
                                                      layer_fractions=geometric_fractions(4)))
     result = encode(scene, config)
     layers = spcodec.inspect(result.data).to_json()["layers"][1:]
-    prefix = result.stats["retrain"]["prefix_psnr"]
+    prefix = result.stats.retrain.prefix_psnr
     assert [p["layer"] for p in prefix] == [k + 1 for k, layer in enumerate(layers)
                                             if layer["gaussians"]]
     assert len(prefix) == 4 and prefix[-1]["psnr"] > prefix[0]["psnr"]
     # the last prefix is the whole file, which the finish scored on the same views (with its
     # positions on their grid, the prefixes without: a few hundredths of a dB apart)
-    assert prefix[-1]["psnr"] == pytest.approx(result.stats["retrain"]["psnr_finished"], abs=0.25)
+    assert prefix[-1]["psnr"] == pytest.approx(result.stats.retrain.psnr_finished, abs=0.25)
     assert spcodec.inspect(result.data).to_json()["metadata"]["stats"]["prefix_psnr"] == prefix
 
 
@@ -169,7 +169,7 @@ def test_rate_control_drops_from_the_last_layer_first(scene):
     free = encode(scene, config)
     sized = encode(scene, dataclasses.replace(config, target_size=int(0.8 * len(free.data))))
     stored = [layer["gaussians"] for layer in spcodec.inspect(sized.data).to_json()["layers"][1:]]
-    trained = np.diff([0] + sized.stats["retrain"]["nested_layers"]).tolist()
+    trained = np.diff([0] + sized.stats.retrain.nested_layers).tolist()
     assert sum(stored) < sum(trained)
     last = max(k for k, count in enumerate(stored) if count)
     assert stored[:last] == trained[:last] and stored[last] <= trained[last]

@@ -272,15 +272,16 @@ def test_encode_refuses_a_preview_it_cannot_make(tmp_path, capsys, argv, message
 
 def test_takeover_is_the_first_prefix_that_beats_the_preview():
     from spcodec.encoder.preview import takeover_layer
+    from spcodec.encoder.statistics import RetrainStats
 
-    scene = {"layer_ends": [10, 20, 30, 40],
-             "retrain": {"prefix_psnr": [{"layer": 1, "psnr": 20.0}, {"layer": 2, "psnr": 30.0},
-                                         {"layer": 3, "psnr": 40.0}]}}
-    preview = {"retrain": {"prefix_psnr": [{"layer": 1, "psnr": 25.0}]}}
-    assert takeover_layer(scene, preview) == 2
-    assert takeover_layer(scene, {"retrain": {"psnr_finished": 45.0}}) == 3
-    assert takeover_layer(scene, {}) == 3
-    assert takeover_layer(scene, {"retrain": {"psnr_quantized": 10.0}}) == 1
+    scene = RetrainStats("blend", prefix_psnr=[{"layer": 1, "psnr": 20.0},
+                                                {"layer": 2, "psnr": 30.0},
+                                                {"layer": 3, "psnr": 40.0}])
+    preview = RetrainStats("blend", prefix_psnr=[{"layer": 1, "psnr": 25.0}])
+    assert takeover_layer(scene, 4, preview) == 2
+    assert takeover_layer(scene, 4, RetrainStats("blend", psnr_finished=45.0)) == 3
+    assert takeover_layer(scene, 4, None) == 3
+    assert takeover_layer(scene, 4, RetrainStats("blend", psnr_quantized=10.0)) == 1
 
 
 def test_preview_payload_layout():

@@ -71,9 +71,9 @@ def test_without_retraining_the_file_is_the_smallest_that_reaches_the_target(sce
     result = encode(scene, EncoderConfig(seed=3, target_psnr=target))
     reached = _closeup_psnr(result.data, scene)
     assert reached >= target and len(result.data) < len(full.data)
-    aim = result.stats["quality_target"]
+    aim = result.stats.quality_target
     assert aim["psnr_without_retraining"] == pytest.approx(reached, abs=0.01)
-    assert result.stats["quality"]["closeups"][0]["psnr"] == pytest.approx(reached, abs=0.01)
+    assert result.stats.quality.closeups[0].psnr == pytest.approx(reached, abs=0.01)
     # what the search judged: every count below the one chosen fell short of the target
     assert CloseupJudge(scene, device="cpu")(spcodec.decode(result.data)) == pytest.approx(
         reached, abs=0.01)
@@ -89,7 +89,7 @@ def test_without_retraining_the_precision_is_the_smallest_point_of_the_curve_tha
     full = encode(scene, EncoderConfig(seed=3))
     target = _closeup_psnr(full.data, scene) - 3.0
     result = encode(scene, aimed(EncoderConfig(seed=3), target))
-    precision = result.stats["quality_target"]["precision"]
+    precision = result.stats.quality_target["precision"]
     judged = {int(i): v for i, v in precision["judged"].items()}
     chosen = precision["chosen_point"]
     assert judged[chosen] >= target and precision["curve_points"] > 1
@@ -97,7 +97,7 @@ def test_without_retraining_the_precision_is_the_smallest_point_of_the_curve_tha
     assert max(judged) == precision["curve_points"] - 1  # the finest point is judged first
     reached = _closeup_psnr(result.data, scene)
     assert target <= reached == pytest.approx(
-        result.stats["quality_target"]["psnr_without_retraining"], abs=0.01)
+        result.stats.quality_target["psnr_without_retraining"], abs=0.01)
     assert len(result.data) < len(full.data)
 
 
@@ -116,7 +116,7 @@ def test_retrained_files_reach_the_target_with_fewer_gaussians(scene):
     target = _closeup_psnr(full.data, scene) - 4.0
     result = encode(scene, EncoderConfig(seed=3, target_psnr=target, retrain=quick,
                                          max_sketch_share=None))
-    aim = result.stats["quality_target"]
+    aim = result.stats.quality_target
     assert aim["reached"] and aim["count_retrained"] <= aim["count_without_retraining"]
     assert _closeup_psnr(result.data, scene) >= target - 0.1  # the finish may move it a little
 

@@ -34,6 +34,7 @@ from spcodec.encoder.ratecontrol import FIT_SLACK
 from spcodec.encoder.retraining import run as retraining_run
 from spcodec.encoder.retraining.control import RunControl
 from spcodec.encoder.stages import SceneWriter
+from spcodec.encoder.statistics import RetrainStats, SnapDecision
 from spcodec.errors import Interrupted, UsageError
 from spcodec.imaging.cameras import Camera
 from spcodec.imaging.evaluate import (
@@ -82,8 +83,8 @@ def test_retraining_beats_the_no_retrain_encode_at_equal_size(scene):
     ours = evaluate_against_reference(spcodec.decode(retrained.data), scene, EVAL).psnr
     theirs = evaluate_against_reference(spcodec.decode(plain.data), scene, EVAL).psnr
     assert ours > theirs + 1.0, (ours, theirs)
-    stats = retrained.stats["retrain"]
-    assert stats["psnr_retrained"] > stats["psnr_before"] + 1.0
+    stats = retrained.stats.retrain
+    assert stats.psnr_retrained > stats.psnr_before + 1.0
 
 
 @pytest.mark.training
@@ -123,31 +124,32 @@ def test_snapping_trains_what_the_file_stores_and_only_when_quantizing_costs(sce
     stores (quantizing afterwards costs nothing more), where quantizing once after free training
     loses; and where the codebooks cost less than ``snap_min_loss`` at the snap step, training
     goes on freely (codebooks of 8 entries, so that quantizing costs something here)."""
-    def run(snap_start: float, snap_min_loss: float = 0.0) -> dict:
+    def run(snap_start: float, snap_min_loss: float = 0.0) -> RetrainStats:
         config = dataclasses.replace(
             retrain_config(iterations=150, finish_iterations=0, snap_start=snap_start,
                            snap_min_loss=snap_min_loss),
             patch=PatchConfig(codebook_size=8))
-        return encode(scene, config).stats["retrain"]
+        return encode(scene, config).stats.retrain
 
     snapped, after = run(0.3), run(1.0)
-    assert "psnr_snapped" in snapped and "psnr_snapped" not in after
-    assert snapped["snap"]["snapped"] and snapped["snap"]["loss_db"] > 0.3
-    assert snapped["psnr_quantized"] == pytest.approx(snapped["psnr_snapped"], abs=0.05)
-    assert after["psnr_retrained"] - after["psnr_quantized"] > 0.3
+    assert snapped.psnr_snapped is not None and after.psnr_snapped is None
+    assert snapped.snap.snapped and snapped.snap.loss_db > 0.3
+    assert snapped.psnr_quantized == pytest.approx(snapped.psnr_snapped, abs=0.05)
+    assert after.psnr_retrained - after.psnr_quantized > 0.3
     declined = run(0.3, snap_min_loss=100.0)
-    assert "psnr_snapped" not in declined and declined["snap"] == {
-        "loss_db": snapped["snap"]["loss_db"], "snapped": False}
+    assert declined.psnr_snapped is None and declined.snap == SnapDecision(
+        snapped.snap.loss_db, snapped=False)
 
 
 @pytest.mark.training
 def test_the_finish_moves_codebooks_and_reports_its_gain(scene):
     result = encode(scene, retrain_config())
-    stats = result.stats["retrain"]
-    assert {"psnr_quantized", "psnr_finished", "finish_seconds"} <= stats.keys()
-    assert stats["psnr_finished"] > stats["psnr_quantized"] - 0.5
+    stats = result.stats.retrain
+    assert None not in (stats.psnr_quantized, stats.psnr_finished, stats.finish_seconds)
+    assert stats.psnr_finished > stats.psnr_quantized - 0.5
     off = encode(scene, retrain_config(finish_iterations=0))
-    assert "psnr_finished" not in off.stats["retrain"]
+    assert off.stats.retrain.psnr_finished is None
+    assert "psnr_finished" not in off.stats.to_json()["retrain"]
     assert off.data != result.data
 
 
@@ -156,7 +158,7 @@ def test_the_finish_moves_codebooks_and_reports_its_gain(scene):
 def test_the_frozen_sketch_is_bit_identical_before_and_after_retraining(scene):
     config = retrain_config()
     result = encode(scene, config)
-    assert result.stats["sketch_gaussians"] > 0
+    assert result.stats.sketch_gaussians > 0
     sketch_after = spcodec.decode_layers(result.data, max_layer=0).cloud
     plain = encode(scene, EncoderConfig(seed=3, max_sketch_share=None))
     sketch_before = spcodec.decode_layers(plain.data, max_layer=0).cloud
@@ -174,11 +176,11 @@ def test_the_sketch_layer_of_a_retrained_file_is_capped_before_training(scene):
     capped = encode(scene, retrain_config(share=0.1, iterations=20))
 
     def first_share(result) -> float:
-        return result.stats["layer_ends"][0] / result.stats["bytes"]
+        return result.stats.layer_ends[0] / result.stats.bytes
 
     assert first_share(free) > 0.2
-    moved = capped.stats["sketch"]["moved_to_patch_for_share"]
-    assert moved > 0 and capped.stats["sketch_gaussians"] < free.stats["sketch_gaussians"]
+    moved = capped.stats.sketch.moved_to_patch_for_share
+    assert moved > 0 and capped.stats.sketch_gaussians < free.stats.sketch_gaussians
     assert first_share(capped) <= 0.12  # the retrained file keeps the pruned file's layout
     assert len(spcodec.decode(capped.data)) == len(capped.source_index)
 
@@ -196,7 +198,7 @@ def test_training_never_changes_the_frozen_tensors(scene):
     stage = RetrainStage(dataclasses.replace(QUICK, iterations=10), targets, sketch,
                          PatchEncoder(), 0, RunControl(device="cpu"))
     before = [t.clone() for t in stage.frozen.tensors()]
-    stage.retrain(patch, {})
+    stage.retrain(patch, RetrainStats(QUICK.prune))
     assert all(torch.equal(a, b) for a, b in zip(before, stage.frozen.tensors()))
     assert all(not t.requires_grad for t in stage.frozen.tensors())
 
@@ -306,7 +308,7 @@ def test_ctrl_c_leaves_a_checkpoint_no_output_and_one_line(tmp_path, scene):
 # ---------------------------------------------------------------------------- rate control
 def _target_size_lands(cloud, target: int, **changes) -> None:
     result = encode(cloud, dataclasses.replace(retrain_config(**changes), target_size=target))
-    rate = result.stats["rate"]
+    rate = result.stats.rate
     # never over; under by what the finish's codebooks saved after the fit (none are re-added)
     assert 0.95 * target <= len(result.data) <= target, rate
     assert rate["target_bytes"] == target and rate["predicted_bytes"] > 0
@@ -336,8 +338,8 @@ def test_the_prefix_table_in_the_metadata_fits_inside_the_target(scene, monkeypa
     monkeypatch.setattr(retraining_run, "_prefix_psnr", long_table)
     target = 15_000
     result = encode(scene, dataclasses.replace(retrain_config(), target_size=target))
-    assert len(result.data) <= target, result.stats["rate"]
-    kept = result.stats["patch_gaussians"]
+    assert len(result.data) <= target, result.stats.rate
+    kept = result.stats.patch_gaussians
     assert len(scored) >= 2 and scored == sorted(scored, reverse=True) and scored[-1] == kept
     assert spcodec.inspect(result.data).metadata["stats"]["prefix_psnr"] == table(kept)
 
@@ -361,13 +363,13 @@ def test_codebooks_that_shrink_with_the_patch_land_on_target_and_leave_room_for_
                                  target_size=target,
                                  patch=PatchConfig(groups_per_entry=TARGET_GROUPS_PER_ENTRY))
     result = encode(cloud, config)
-    assert 0.95 * target <= len(result.data) <= target, result.stats["rate"]
-    codebooks = result.stats["sections"]["PATCH_CODEBOOKS"]
-    assert codebooks < 0.2 * len(result.data), result.stats["sections"]  # was 52 %
+    assert 0.95 * target <= len(result.data) <= target, result.stats.rate
+    codebooks = result.stats.sections["PATCH_CODEBOOKS"]
+    assert codebooks < 0.2 * len(result.data), result.stats.sections  # was 52 %
     # the codebooks written are those the fit measured: sized at the planned count, not at the
     # (smaller) count training ended with
     planned = dataclasses.replace(config.patch,
-                                  codebooks_sized_for=result.stats["rate"]["predicted_count"])
+                                  codebooks_sized_for=result.stats.rate["predicted_count"])
     section = next(s for s in spcodec.inspect(result.data).to_json()["sections"]
                    if s["type"] == "PATCH_CODEBOOKS")
     raw = zlib.decompress(result.data[section["offset"]:section["offset"] + section["length"]])
@@ -466,17 +468,17 @@ def test_dataset_mode_trains_on_train_views_and_reports_test_psnr(tmp_path, scen
     with warnings.catch_warnings():
         warnings.simplefilter("error", DatasetMismatchWarning)
         result = encode(scene, retrain_config(), dataset=tmp_path / "data")
-    quality = result.stats["quality"]
-    assert quality["views"] == 2 and quality["width"] == 64 and "test images" in quality["against"]
+    quality = result.stats.quality
+    assert quality.views == 2 and quality.width == 64 and "test images" in quality.against
     # trained and judged at one low-pass, INRIA's (the dataset's model's), as eval would judge
-    assert quality["against"].endswith("(low-pass 0.3 px^2)")
+    assert quality.against.endswith("(low-pass 0.3 px^2)")
     again = evaluate_against_dataset(spcodec.decode_layers(result.data).cloud, tmp_path / "data",
                                      EvalConfig(device="cpu"))
-    assert again.psnr == pytest.approx(quality["psnr"], abs=1e-3)
+    assert again.psnr == pytest.approx(quality.psnr, abs=1e-3)
     # learned from the images: at these 64x48 views the viewer's sharper low-pass (0.075 px^2)
     # leaves the synthetic scene's finest Gaussians aliased, so judge the gain, not a level
-    stats = result.stats["retrain"]
-    assert stats["psnr_retrained"] > stats["psnr_before"] + 2.0
+    stats = result.stats.retrain
+    assert stats.psnr_retrained > stats.psnr_before + 2.0
 
 
 def test_unreadable_dataset_is_one_line_and_no_output(tmp_path, scene, capsys):

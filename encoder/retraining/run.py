@@ -19,6 +19,7 @@ from ..estimate import RunEstimate
 from ..patch import PatchEncoder, PatchEncoding, Quantized, quantized_cloud
 from ..sizing import Sizing
 from ..stages import PatchChoice, ProgressFactory, SceneWriter
+from ..statistics import RetrainStats
 from .clock import TrainingClock, meter
 from .control import RunControl
 from .nested import NestedLayers, layer_priority, layers_of
@@ -70,31 +71,30 @@ class Survivors:
                          self.rows[top])
 
 
-def retrain_patch(run: RetrainRun, patch: GaussianCloud, kept: np.ndarray, weights: np.ndarray,
-                  stats: dict) -> PatchChoice:
+def retrain_patch(run: RetrainRun, patch: GaussianCloud, kept: np.ndarray, weights: np.ndarray
+                  ) -> PatchChoice:
     """Retrain the survivors ``kept`` of ``patch`` (ranked by ``weights``) and encode them as the
-    file's patch layers, as many as ``run.sizing`` lets through; ``stats`` gains the run's."""
+    file's patch layers, as many as ``run.sizing`` lets through."""
     retrain = run.config.retrain
-    train_stats: dict = {"prune": retrain.prune}
+    train_stats = RetrainStats(retrain.prune)
     encoder, nested = run.encoder, None
     if retrain.nested:  # every step trains one layer prefix (:mod:`.nested`)
         nested, order = NestedLayers.plan(weights, encoder, run.config.seed,
                                           retrain.nested_full_share)
         kept, encoder = kept[order], nested.encoder(encoder)
-        train_stats["nested_layers"] = nested.ends
+        train_stats.nested_layers = nested.ends
     stage = run.stage(encoder, nested)
     clock = TrainingClock((run.estimate.evaluation or 0.0) + run.estimate.fixed, run.estimate.step)
     survivors = _train(run, stage, patch, kept, train_stats, clock)
     survivors = _quantize(run, stage, encoder, survivors, nested)
     encoding, survivors = _finish(run, stage, encoder, survivors, nested, train_stats, clock)
-    stats.update(run.sizing.stats(), retrain=train_stats)
     if run.checkpointer is not None:
         run.checkpointer.remove()
-    return PatchChoice(encoding, survivors.rows, stats)
+    return PatchChoice(encoding, survivors.rows, sizing=run.sizing.stats(), retrain=train_stats)
 
 
 def _train(run: RetrainRun, stage: RetrainStage, patch: GaussianCloud, kept: np.ndarray,
-           train_stats: dict, clock: TrainingClock) -> Survivors:
+           train_stats: RetrainStats, clock: TrainingClock) -> Survivors:
     """Retrain the rows ``kept`` of ``patch``; rate control may drop some when snapping starts."""
     retrain = run.config.retrain
     t = time.perf_counter()
@@ -102,10 +102,10 @@ def _train(run: RetrainRun, stage: RetrainStage, patch: GaussianCloud, kept: np.
     trained = stage.retrain(patch.subset(kept), train_stats,
                             meter(report, clock, retrain.finish_iterations, run.estimate))
     if stage.kept is not None:  # rate control dropped some when snapping started
-        train_stats["fitted_when_snapping"] = {"from": len(kept), "to": len(stage.kept)}
+        train_stats.fitted_when_snapping = (len(kept), len(stage.kept))
         kept = kept[stage.kept]
-    report.done(f"{len(kept)} patch Gaussians, {train_stats['psnr_before']:.2f} -> "
-                f"{train_stats['psnr_retrained']:.2f} dB on the training views")
+    report.done(f"{len(kept)} patch Gaussians, {train_stats.psnr_before:.2f} -> "
+                f"{train_stats.psnr_retrained:.2f} dB on the training views")
     run.times["retrain"] = time.perf_counter() - t
     return Survivors(trained, None, None, kept)
 
@@ -130,7 +130,7 @@ def _quantize(run: RetrainRun, stage: RetrainStage, encoder: PatchEncoder, survi
 
 
 def _finish(run: RetrainRun, stage: RetrainStage, encoder: PatchEncoder, survivors: Survivors,
-            nested: NestedLayers | None, train_stats: dict, clock: TrainingClock
+            nested: NestedLayers | None, train_stats: RetrainStats, clock: TrainingClock
             ) -> tuple[PatchEncoding, Survivors]:
     """The quantization-aware finish, the layers, and the trim that makes the file fit with
     its per-prefix PSNR table."""
@@ -144,16 +144,15 @@ def _finish(run: RetrainRun, stage: RetrainStage, encoder: PatchEncoder, survivo
         layer_priority(ranked, layers_of(survivors.importance, layers), layers)
     survivors = Survivors(trained, quantized, importance, survivors.rows)
     encoding, survivors = _fit_written(run, stage, encoder, survivors, train_stats)
-    gain = train_stats.get("psnr_finished", train_stats["psnr_quantized"]) \
-        - train_stats["psnr_quantized"]
-    report.done(f"quantized {train_stats['psnr_quantized']:.2f} dB, finish {gain:+.2f} dB on the "
+    report.done(f"quantized {train_stats.psnr_quantized:.2f} dB, finish "
+                f"{train_stats.finish_gain:+.2f} dB on the "
                 "training views")
     run.times["finish"] = time.perf_counter() - t
     return encoding, survivors
 
 
 def _fit_written(run: RetrainRun, stage: RetrainStage, encoder: PatchEncoder,
-                 survivors: Survivors, train_stats: dict) -> tuple[PatchEncoding, Survivors]:
+                 survivors: Survivors, train_stats: RetrainStats) -> tuple[PatchEncoding, Survivors]:
     """Trim the least important until the file fits as written: the finish can grow it, and the
     metadata then records each prefix's PSNR, scored on what is left (without that table in
     the fit, kacytran at SPZ/16 came out 23 bytes over: docs/LOG.md 13.20)."""
@@ -172,7 +171,7 @@ def _fit_written(run: RetrainRun, stage: RetrainStage, encoder: PatchEncoder,
             if len(encoding.layers) > 1 else None
         scored = True
     if prefix:
-        train_stats["prefix_psnr"] = prefix
+        train_stats.prefix_psnr = prefix
     return encoding, s
 
 

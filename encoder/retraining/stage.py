@@ -44,6 +44,7 @@ from spcodec.sections import Codebook
 from ..config import RetrainConfig
 from ..patch import PatchEncoder, Quantized, quantized_cloud
 from ..prune import select
+from ..statistics import RetrainStats, SnapDecision
 from .control import RunControl
 from .nested import NestedLayers
 from .quantaware import CodebookGaussians, SnappedGaussians, with_positions
@@ -84,7 +85,7 @@ class RetrainStage:
         self.snapped: list[Codebook] | None = None
         self.kept: np.ndarray | None = None
         #: What the quantization cost when snapping was to start, and whether it did.
-        self.snap_decision: dict | None = None
+        self.snap_decision: SnapDecision | None = None
 
     # ---------------------------------------------------------------------------- pruning
     def patch_weights(self, scene: GaussianCloud, patch_rows: np.ndarray) -> np.ndarray:
@@ -96,7 +97,7 @@ class RetrainStage:
         return select(self.config.prune, patch_count, keep, self.seed, weights)
 
     # --------------------------------------------------------------------------- training
-    def retrain(self, survivors: GaussianCloud, stats: dict,
+    def retrain(self, survivors: GaussianCloud, stats: RetrainStats,
                 on_step: Callable[[StepReport], None] | None = None) -> GaussianCloud:
         """Optimize the pruned patch against the targets (or take the result from a checkpoint
         of a later stage when resuming)."""
@@ -110,7 +111,7 @@ class RetrainStage:
         model = self._model(survivors)
         loop = self._loop(model, self.config.iterations,
                           None if self.nested is None else self.nested.training())
-        stats["psnr_before"] = loop.mean_psnr()
+        stats.psnr_before = loop.mean_psnr()
         start = time.perf_counter()
         saved = self.saved
         if saved is not None and saved["stage"] != "retrain":
@@ -127,12 +128,12 @@ class RetrainStage:
                 if model.snapping:
                     model.picked = None  # the nearest entries, as the file will store them
                     self.snapped = model.snap.codebooks()
-                    stats["psnr_snapped"] = loop.mean_psnr()
+                    stats.psnr_snapped = loop.mean_psnr()
             if self.snap_decision is not None:
-                stats["snap"] = self.snap_decision
+                stats.snap = self.snap_decision
         self.trained = trained
-        stats["retrain_seconds"] = time.perf_counter() - start
-        stats["psnr_retrained"] = loop.mean_psnr(GaussianParams.from_cloud(trained, self.device))
+        stats.retrain_seconds = time.perf_counter() - start
+        stats.psnr_retrained = loop.mean_psnr(GaussianParams.from_cloud(trained, self.device))
         return trained
 
     def quantize(self, trained: GaussianCloud) -> tuple[Quantized, np.ndarray]:
@@ -145,7 +146,7 @@ class RetrainStage:
         weights = self.patch_encoder.kmeans_weights(importance)
         return self.patch_encoder.quantize(trained, weights), importance
 
-    def finish(self, trained: GaussianCloud, quantized: Quantized, stats: dict,
+    def finish(self, trained: GaussianCloud, quantized: Quantized, stats: RetrainStats,
                on_step: Callable[[StepReport], None] | None = None,
                priority: np.ndarray | None = None) -> tuple[Quantized, GaussianCloud]:
         """The quantization-aware fine-tune of ``quantized`` (codebooks of ``trained``): returns
@@ -161,7 +162,7 @@ class RetrainStage:
             raise ValueError("a nested finish needs the layer priority of the Gaussians")
         loop = self._loop(model, cfg.finish_iterations, None if self.nested is None else
                           self.nested.finishing(priority, encoder.config.layers))
-        stats["psnr_quantized"] = loop.mean_psnr()
+        stats.psnr_quantized = loop.mean_psnr()
         if cfg.finish_iterations == 0:
             return quantized, trained
         start = time.perf_counter()
@@ -183,8 +184,8 @@ class RetrainStage:
                          "snap": self._snap_state()}
         self._run_stage("finish", loop, lambda: {**trained_state, "model": model.state_dict()},
                         reassign)
-        stats["psnr_finished"] = loop.mean_psnr()
-        stats["finish_seconds"] = time.perf_counter() - start
+        stats.psnr_finished = loop.mean_psnr()
+        stats.finish_seconds = time.perf_counter() - start
         return (Quantized(model.codebooks(), model.index_arrays()),
                 with_positions(trained, model.positions()))
 
@@ -222,8 +223,7 @@ class RetrainStage:
             weights = np.ones(len(cloud))
         quantized = encoder.quantize(cloud, weights)
         loss = self._quantization_loss(cloud, quantized)
-        self.snap_decision = {"loss_db": round(loss, 3),
-                              "snapped": loss >= self.config.snap_min_loss}
+        self.snap_decision = SnapDecision(round(loss, 3), loss >= self.config.snap_min_loss)
         return rows, quantized.codebooks if loss >= self.config.snap_min_loss else None, weights
 
     def psnr(self, patch: GaussianCloud) -> float:

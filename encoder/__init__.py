@@ -1,12 +1,12 @@
 """The spcodec reference encoder (extra ``encoder``).
 
 ``spcodec.encoder.encode(cloud, config)`` runs the no-retrain pipeline (categorize, refine, sketch,
-patch, write); :class:`EncoderConfig` holds every parameter; :func:`preset_config` gives the named
-operating points (with ``retrain=True``, the retrained layout the CLI writes); :func:`sized` aims
-one at a file size and :func:`aimed` at a quality. The picture tools it trains and judges with
-(renderer, cameras, datasets, metrics, evaluation) are a package of their own,
-:mod:`spcodec.imaging`. Names are resolved on first use, so ``import spcodec.encoder`` alone
-loads neither scikit-learn nor torch.
+patch, write) and returns the file with its :class:`EncodeStats`; :class:`EncoderConfig` holds every
+parameter; :func:`preset_config` gives the named operating points (with ``retrain=True``, the
+retrained layout the CLI writes); :func:`sized` aims one at a file size and :func:`aimed` at a
+quality. The picture tools it trains and judges with (renderer, cameras, datasets, metrics,
+evaluation) are a package of their own, :mod:`spcodec.imaging`. Names are resolved on first use, so
+``import spcodec.encoder`` alone loads neither scikit-learn nor torch.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from typing import Any
 
 _EXPORTS = {
     "encode": "pipeline", "EncoderConfig": "pipeline", "EncodeResult": "pipeline",
+    "EncodeStats": "statistics",
     "preset_config": "presets", "PRESETS": "presets", "sized": "presets", "aimed": "presets",
 }
 

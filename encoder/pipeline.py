@@ -30,10 +30,10 @@ from .patch import PatchEncoder, PatchEncoding, retrained_position_bits
 from .prune_retrain import encode_pruned_patch, factor_trial
 from .refine import RefineResult, refine
 from .retraining.control import RunControl
-from .retraining.targets import prepare_targets, scene_weights
-from .sizing import sizing_for
+from .retraining.targets import PreparedTargets, prepare_targets, scene_weights
+from .sizing import Sizing, sizing_for
 from .sketch import SketchEncoder
-from .stages import ProgressFactory, SceneWriter, SketchOutcome, silent
+from .stages import EncodeRun, PatchChoice, ProgressFactory, SceneWriter, SketchOutcome, silent
 from .statistics import Closeup, EncodeStats, Quality, SketchStats, SkippedEvaluation
 
 
@@ -68,6 +68,24 @@ def with_position_bits(config: EncoderConfig, cloud: GaussianCloud) -> EncoderCo
     return dataclasses.replace(config, patch=dataclasses.replace(config.patch, position_bits=bits))
 
 
+def settled_config(cloud: GaussianCloud, config: EncoderConfig | None,
+                   dataset: str | Path | None) -> EncoderConfig:
+    """``config`` checked against the input and with everything chosen by default settled once
+    (seed, position bits, low-pass), so that the file's metadata and a checkpoint's fingerprint
+    name what was used; one-line errors for what cannot be encoded."""
+    config = (config or EncoderConfig()).seeded()
+    validate_input(cloud)
+    config = with_position_bits(config, cloud)
+    config = dataclasses.replace(config, blur_variance=config.low_pass(dataset is not None))
+    if dataset is not None and config.retrain is None:
+        raise UsageError("a dataset is only used for retraining: drop it or enable retraining")
+    if config.codec.upper() not in Codec.__members__:
+        raise UsageError(f"unknown codec {config.codec!r}: use zlib or zstd")
+    if config.target_size is not None and config.target_psnr is not None:
+        raise UsageError("give one target: a size or a PSNR")
+    return config
+
+
 def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
            progress: ProgressFactory = silent, source_name: str | None = None,
            dataset: str | Path | None = None, control: RunControl | None = None) -> EncodeResult:
@@ -79,108 +97,164 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
     ``config.target_size`` turns on rate control (:mod:`.ratecontrol`), ``config.target_psnr``
     quality control (:mod:`.qualitycontrol`).
     """
-    config = (config or EncoderConfig()).seeded()
-    validate_input(cloud)
-    config = with_position_bits(config, cloud)
-    # settled once, so the file's metadata and a checkpoint's fingerprint name the low-pass used
-    config = dataclasses.replace(config, blur_variance=config.low_pass(dataset is not None))
-    if dataset is not None and config.retrain is None:
-        raise UsageError("a dataset is only used for retraining: drop it or enable retraining")
-    try:
-        codec = Codec[config.codec.upper()]
-    except KeyError:
-        raise UsageError(f"unknown codec {config.codec!r}: use zlib or zstd") from None
-    times: dict[str, float] = {}
-    prepared = None
-    if config.target_size is not None and config.target_psnr is not None:
-        raise UsageError("give one target: a size or a PSNR")
+    config = settled_config(cloud, config, dataset)
     pruned = config.retrain is not None or config.target_size is not None or \
         config.target_psnr is not None
     if pruned:
         control = control or RunControl()
         control.check_checkpoint()
+    run = EncodeRun(cloud, config, progress, dataset=dataset, control=control)
+    prepared = None
     if config.retrain is not None:  # only training needs targets (rendering them takes minutes)
-        prepared = prepare_targets(cloud, config, dataset, control, progress, times)
-    refined, found = refine_sketch(cloud, config, progress, times)
-    sketch = encode_sketch(cloud, refined, found, config, progress, times)
-    metadata = {"encoder": "spcodec", "version": _version(), "source": source_name,
-                "up": config.up, "settings": config.to_json()}
-    writer = SceneWriter(cloud.sh_degree, sketch.clusters, metadata,
-                         WriteOptions(codec=codec, gzip=config.gzip))
-    choice = None
-    patch_encoder = PatchEncoder(config.patch, seed=config.seed)
-    if prepared is None:
-        t = time.perf_counter()
-        stage = progress("importance", None)
-        importance = patch_encoder.measure_importance(cloud)  # whole scene: the sketch occludes
-        stage.done(_importance_summary(config.patch))
-        times["importance"] = time.perf_counter() - t
+        prepared = prepare_targets(cloud, config, dataset, control, progress, run.times)
+    refined, found = refine_sketch(cloud, config, progress, run.times)
+    sketch = encode_sketch(cloud, refined, found, config, progress, run.times)
+    writer = scene_writer(cloud.sh_degree, sketch, config, source_name)
+    importance = None if prepared is not None else measure_importance(run)
     if not pruned:
-        last: dict = {}
-
-        def encoded(part: SketchOutcome, part_writer: SceneWriter) -> WrittenFile:
-            last["patch"], last["file"] = _encode_patch(cloud, part, part_writer, importance,
-                                                        patch_encoder, progress, times)
-            last["sketch"] = part
-            return last["file"]
-
-        sketch, writer = _cap_sketch(cloud, refined, found, sketch, writer, config, importance,
-                                     encoded, progress, times)
-        if last.get("sketch") is not sketch:
-            encoded(sketch, writer)
-        patch, written = last["patch"], last["file"]
-        rows = np.arange(len(sketch.patch_idx))
+        made = encode_whole_patch(run, refined, found, sketch, writer, importance)
     else:
         weights = importance if prepared is None else scene_weights(cloud, config, prepared)
-        # the share is judged on the file the prune factor makes before training, whose layout
-        # the retrained file keeps (same count, same codebook settings)
-        sketch, writer = _cap_sketch(
-            cloud, refined, found, sketch, writer, config, weights,
-            lambda part, part_writer: factor_trial(part, cloud.subset(part.patch_idx),
-                                                   part_writer, config, weights),
-            progress, times, file_size=config.target_size)
-        sizing = sizing_for(config, cloud, control.device)
-        choice = encode_pruned_patch(cloud, sketch, cloud.subset(sketch.patch_idx), writer,
-                                     config, prepared, weights, dataset, control, sizing,
-                                     progress, times)
-        if sketch.clusters and sizing.drops_sketch(cloud, sketch, writer, choice.encoding):
-            # the sketch's models cost more picture than their bytes buy as precision
-            sketch = encode_sketch(cloud, None, found, config, progress, times)
-            sketch.stats.dropped_for_precision = True
-            writer = dataclasses.replace(writer, sketch=[])
-            again = sizing_for(config, cloud, control.device)
-            again.inherit(sizing)
-            choice = encode_pruned_patch(cloud, sketch, cloud, writer, config, prepared, weights,
-                                         dataset, control, again, progress, times)
-        patch, rows = choice.encoding, choice.rows
-        writer = writer.with_prefix_psnr(None if choice.retrain is None else choice.retrain.prefix_psnr)
-        written = _write(writer, patch, progress, times)
-    data = written.data
-    patch_idx = sketch.patch_idx[rows]
-    source = np.concatenate(sketch.sources + [patch_idx[o] for o in patch.order]).astype(np.int64) \
-        if (sketch.sources or len(patch_idx)) else np.zeros(0, np.int64)
+        made = encode_pruned(run, refined, found, sketch, writer, weights, prepared)
+    stats = made.stats(cloud, run.times)
+    if config.retrain is not None or config.target_psnr is not None:
+        closing_evaluation(run, made.written.data, stats)
+    return EncodeResult(made.written.data, made.writer.scene(made.patch), made.source_index(),
+                        stats)
 
-    stats = EncodeStats(
-        gaussians=len(cloud), sketch_gaussians=int(sum(map(len, sketch.sources))),
-        patch_gaussians=int(len(patch_idx)), patch_layers=len(writer.scene(patch).patch_layers),
-        sketch=sketch.stats, bytes=len(data), sections=written.layout.section_bytes(),
-        layer_ends=list(written.layout.stored_ends()), seconds=times)
-    if choice is not None:
-        stats.psnr_input, stats.sizing, stats.retrain = \
-            choice.psnr_input, choice.sizing, choice.retrain
-    stats.sketch_error = sketch_error(data, cloud, source, stats.sketch_gaussians)
-    if (config.retrain is not None or config.target_psnr is not None) and not config.evaluate:
-        stats.evaluation = SkippedEvaluation(eval_options(config, dataset))
-    elif config.retrain is not None or config.target_psnr is not None:
-        t = time.perf_counter()
-        stage = progress("evaluate", None)
-        stats.quality = quality = judge(data, cloud, config, dataset, control, progress)
-        closer = "".join(f", {c.psnr:.2f} dB at {c.distance:g} of the distance"
-                         for c in quality.closeups)
-        stage.done(f"PSNR {quality.psnr:.2f} dB, SSIM {quality.ssim:.4f}{closer} against "
-                   f"{quality.against}")
-        times["evaluate"] = time.perf_counter() - t
-    return EncodeResult(data, writer.scene(patch), source, stats)
+
+@dataclass
+class Encoded:
+    """The file an encode made and what it was made of: the sketch and writer it ended with,
+    the patch encoding, and which rows of the sketch's patch Gaussians the patch holds."""
+
+    sketch: SketchOutcome
+    writer: SceneWriter
+    patch: PatchEncoding
+    rows: np.ndarray
+    written: WrittenFile
+    choice: PatchChoice | None = None
+    """The pruned patch's record (None: every patch Gaussian was coded)."""
+
+    def source_index(self) -> np.ndarray:
+        """For each Gaussian of the file, in file order, the index of the input Gaussian."""
+        sketch, patch_idx = self.sketch, self.sketch.patch_idx[self.rows]
+        if not (sketch.sources or len(patch_idx)):
+            return np.zeros(0, np.int64)
+        return np.concatenate(sketch.sources + [patch_idx[o] for o in self.patch.order]
+                              ).astype(np.int64)
+
+    def stats(self, cloud: GaussianCloud, times: dict[str, float]) -> EncodeStats:
+        """The record of the file, with the sketch's errors measured on the file itself."""
+        layout, data, choice = self.written.layout, self.written.data, self.choice
+        stats = EncodeStats(
+            gaussians=len(cloud), sketch_gaussians=int(sum(map(len, self.sketch.sources))),
+            patch_gaussians=len(self.rows),
+            patch_layers=len(self.writer.scene(self.patch).patch_layers),
+            sketch=self.sketch.stats, bytes=len(data), sections=layout.section_bytes(),
+            layer_ends=list(layout.stored_ends()), seconds=times)
+        if choice is not None:
+            stats.psnr_input, stats.sizing, stats.retrain = \
+                choice.psnr_input, choice.sizing, choice.retrain
+        stats.sketch_error = sketch_error(data, cloud, self.source_index(), stats.sketch_gaussians)
+        return stats
+
+
+def scene_writer(sh_degree: int, sketch: SketchOutcome, config: EncoderConfig,
+                 source_name: str | None) -> SceneWriter:
+    """The writer of this encode's file: the sketch and the metadata fixed, any patch."""
+    metadata = {"encoder": "spcodec", "version": _version(), "source": source_name,
+                "up": config.up, "settings": config.to_json()}
+    return SceneWriter(sh_degree, sketch.clusters, metadata,
+                       WriteOptions(codec=Codec[config.codec.upper()], gzip=config.gzip))
+
+
+def measure_importance(run: EncodeRun) -> np.ndarray:
+    """The patch encoder's importance of every Gaussian of the whole scene (the sketch
+    occludes): what orders the layers and ranks sketch clusters without retraining."""
+    t = time.perf_counter()
+    stage = run.progress("importance", None)
+    importance = PatchEncoder(run.config.patch, seed=run.config.seed).measure_importance(run.cloud)
+    stage.done(_importance_summary(run.config.patch))
+    run.times["importance"] = time.perf_counter() - t
+    return importance
+
+
+def encode_whole_patch(run: EncodeRun, refined: RefineResult | None, found: int,
+                       sketch: SketchOutcome, writer: SceneWriter, importance: np.ndarray
+                       ) -> Encoded:
+    """Every Gaussian the sketch leaves coded as patch, the sketch capped to its share of the
+    file that makes (each trial file of the cap is a full encode, and the last one is kept)."""
+    patch_encoder = PatchEncoder(run.config.patch, seed=run.config.seed)
+    last: list[Encoded] = []
+
+    def encoded(part: SketchOutcome, part_writer: SceneWriter) -> WrittenFile:
+        patch, written = _encode_patch(run.cloud, part, part_writer, importance, patch_encoder,
+                                       run.progress, run.times)
+        last.append(Encoded(part, part_writer, patch, np.arange(len(part.patch_idx)), written))
+        return written
+
+    sketch, writer = _cap_sketch(run, refined, found, sketch, writer, importance, encoded)
+    if not last or last[-1].sketch is not sketch:
+        encoded(sketch, writer)
+    return last[-1]
+
+
+def encode_pruned(run: EncodeRun, refined: RefineResult | None, found: int,
+                  sketch: SketchOutcome, writer: SceneWriter, weights: np.ndarray,
+                  prepared: PreparedTargets | None) -> Encoded:
+    """The patch pruned (and retrained) to what the sizing says, the sketch capped to its share
+    of the file the prune factor makes before training (whose layout the retrained file keeps:
+    same count, same codebook settings), and dropped when the file is better without it."""
+    cloud, config = run.cloud, run.config
+    sketch, writer = _cap_sketch(
+        run, refined, found, sketch, writer, weights,
+        lambda part, part_writer: factor_trial(part, cloud.subset(part.patch_idx), part_writer,
+                                               config, weights),
+        file_size=config.target_size)
+    sizing = sizing_for(config, cloud, run.control.device)
+    choice = encode_pruned_patch(run, sketch, cloud.subset(sketch.patch_idx), writer, prepared,
+                                 weights, sizing)
+    if sketch.clusters and sizing.drops_sketch(cloud, sketch, writer, choice.encoding):
+        sketch, writer, choice = encode_without_sketch(run, found, writer, weights, prepared,
+                                                       sizing)
+    writer = writer.with_prefix_psnr(None if choice.retrain is None else choice.retrain.prefix_psnr)
+    written = _write(writer, choice.encoding, run.progress, run.times)
+    return Encoded(sketch, writer, choice.encoding, choice.rows, written, choice)
+
+
+def encode_without_sketch(run: EncodeRun, found: int, writer: SceneWriter, weights: np.ndarray,
+                          prepared: PreparedTargets | None, sizing: Sizing
+                          ) -> tuple[SketchOutcome, SceneWriter, PatchChoice]:
+    """The pruned encode made again with every Gaussian patch, for a sketch whose models cost
+    more picture than their bytes buy as precision; the new sizing inherits what the first one
+    measured of the scene."""
+    config = run.config
+    sketch = encode_sketch(run.cloud, None, found, config, run.progress, run.times)
+    sketch.stats.dropped_for_precision = True
+    writer = dataclasses.replace(writer, sketch=[])
+    again = sizing_for(config, run.cloud, run.control.device)
+    again.inherit(sizing)
+    choice = encode_pruned_patch(run, sketch, run.cloud, writer, prepared, weights, again)
+    return sketch, writer, choice
+
+
+def closing_evaluation(run: EncodeRun, data: bytes, stats: EncodeStats) -> None:
+    """Judge the written file as ``spcodec eval`` would (``stats.quality``), or, with the
+    evaluation turned off, record the ``eval`` options that measure it later."""
+    config = run.config
+    if not config.evaluate:
+        stats.evaluation = SkippedEvaluation(eval_options(config, run.dataset))
+        return
+    t = time.perf_counter()
+    stage = run.progress("evaluate", None)
+    stats.quality = quality = judge(data, run.cloud, config, run.dataset, run.control,
+                                    run.progress)
+    closer = "".join(f", {c.psnr:.2f} dB at {c.distance:g} of the distance"
+                     for c in quality.closeups)
+    stage.done(f"PSNR {quality.psnr:.2f} dB, SSIM {quality.ssim:.4f}{closer} against "
+               f"{quality.against}")
+    run.times["evaluate"] = time.perf_counter() - t
 
 
 def judge(data: bytes, original: GaussianCloud, config: EncoderConfig,
@@ -287,17 +361,15 @@ def _write(writer: SceneWriter, patch: PatchEncoding, progress: ProgressFactory,
     return written
 
 
-def _cap_sketch(cloud: GaussianCloud, refined: RefineResult | None, found: int,
-                sketch: SketchOutcome, writer: SceneWriter, config: EncoderConfig,
-                importance: np.ndarray,
+def _cap_sketch(run: EncodeRun, refined: RefineResult | None, found: int,
+                sketch: SketchOutcome, writer: SceneWriter, importance: np.ndarray,
                 file_of: Callable[[SketchOutcome, SceneWriter], WrittenFile | None],
-                progress: ProgressFactory, times: dict[str, float], file_size: int | None = None
-                ) -> tuple[SketchOutcome, SceneWriter]:
+                file_size: int | None = None) -> tuple[SketchOutcome, SceneWriter]:
     """Move the sketch clusters of least ``importance`` per Gaussian to the patch until the
     sketch layer of ``file_of(sketch, writer)`` (None: nothing to judge) ends within
     ``config.max_sketch_share`` of it, or of ``file_size`` when rate control will make the file
     that size whatever the sketch keeps: the sketch and its writer."""
-    moved = 0
+    config, moved = run.config, 0
     while refined is not None and sketch.clusters and config.max_sketch_share is not None:
         written = file_of(sketch, writer)
         keep = None if written is None else \
@@ -307,7 +379,7 @@ def _cap_sketch(cloud: GaussianCloud, refined: RefineResult | None, found: int,
         before = len(refined.patch)
         refined = _keep_clusters(refined, keep)
         moved += len(refined.patch) - before
-        sketch = encode_sketch(cloud, refined, found, config, progress, times)
+        sketch = encode_sketch(run.cloud, refined, found, config, run.progress, run.times)
         writer = dataclasses.replace(writer, sketch=sketch.clusters)
     sketch.stats.moved_to_patch_for_share = moved
     return sketch, writer

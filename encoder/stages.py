@@ -9,7 +9,8 @@ none imports another for them.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -17,8 +18,12 @@ from spcodec.cloud import GaussianCloud
 from spcodec.decoder import decode_layers
 from spcodec.writer import EncodedScene, WriteOptions, WrittenFile, write_file
 
+from .config import EncoderConfig
 from .patch import PatchEncoding
 from .statistics import RetrainStats, SketchStats
+
+if TYPE_CHECKING:  # torch: only a pruned encode holds a run control
+    from .retraining.control import RunControl
 
 ProgressFactory = Callable[[str, int | None], "Stage"]
 
@@ -55,6 +60,19 @@ class SketchOutcome:
     patch_idx: np.ndarray
     """Sorted indices of the input Gaussians left to the patch."""
     stats: SketchStats
+
+
+@dataclass
+class EncodeRun:
+    """What every stage of one encode reads: the input scene, its settled settings, where
+    progress and stage times go, and the dataset and run control of a pruned encode."""
+
+    cloud: GaussianCloud
+    config: EncoderConfig
+    progress: ProgressFactory
+    times: dict[str, float] = field(default_factory=dict)
+    dataset: str | Path | None = None
+    control: RunControl | None = None
 
 
 @dataclass

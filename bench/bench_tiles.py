@@ -9,17 +9,25 @@ children of their nannies, which are children of this process), so no run inheri
 of a 500 k scene, each in its own process. ``merges`` judges the levels of detail of a built
 tileset: renders of an inner node's merged Gaussians against renders of the finer Gaussians it
 replaces (its children's), at a few views with the CPU renderer, beside a random subset of the same
-count as a yardstick.
+count as a yardstick. ``decimate`` (issue 39's comparison) builds a tileset of a real scene, decodes
+every node of the level nearest 1/16 of the input into one PLY, decimates the input with
+PlayCanvas splat-transform (``$SPLAT_TRANSFORM`` or on PATH, ``--decimate``: pairwise merging) to
+the same count, and judges both against the input in a third-party renderer
+(``../shared/tools/two-framings.sh``: PlayCanvas in Chromium, orbit and close framings), writing
+``docs/results/tiles_decimate.json``.
 
-    python bench/bench_tiles.py make --gaussians 2000000 -o big.ply [--base fourth_st]
+    python bench/bench_tiles.py make --gaussians 2000000 -o big.ply [--base fourth_st | --layout city]
     python bench/bench_tiles.py compare big.ply --work OUT/ [--leaf-size 65536]
     python bench/bench_tiles.py merges OUT/tiled-w1 [--nodes 4] [--views 4]
+    python bench/bench_tiles.py decimate --work DIR [--scenes guitar donut]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import re
 import resource
 import shutil
 import subprocess
@@ -29,13 +37,18 @@ from pathlib import Path
 
 import numpy as np
 
-from spcodec import read_ply, write_ply
+from spcodec import GaussianCloud, read_ply, write_ply
 
-from scenes import REAL, data_dir, load_scene, tiled_scene  # bench/ is on sys.path
+from scenes import CITY_BASES, REAL, city_scene, data_dir, load_scene, tiled_scene  # bench/ on sys.path
 
 
 def make(args: argparse.Namespace) -> None:
-    """Write the large scene."""
+    """Write the large scene: copies of one scene in a cube, or a city of several (``--layout``)."""
+    if args.layout == "city":
+        bases = [read_ply(data_dir() / REAL[name]) for name in CITY_BASES]
+        write_ply(args.output, city_scene(bases, args.gaussians, seed=args.seed))
+        print(f"{args.output}: {args.gaussians} Gaussians, a city of {', '.join(CITY_BASES)}")
+        return
     base = read_ply(data_dir() / REAL[args.base])
     write_ply(args.output, tiled_scene(base, args.gaussians, seed=args.seed))
     print(f"{args.output}: {args.gaussians} Gaussians from {args.base}")
@@ -57,9 +70,18 @@ def run_one(args: argparse.Namespace) -> None:
         from spcodec.tiling import TilingConfig, build_tileset
 
         summary = build_tileset(args.input, args.output, TilingConfig(
-            leaf_size=args.leaf_size, workers=args.workers))
+            leaf_size=args.leaf_size, branching=args.branching, workers=args.workers, keep_work=True))
+        per_level: dict[int, list[int]] = {}
+        stack = [json.loads(summary.tileset.read_text())["root"]]
+        while stack:
+            tile = stack.pop()
+            extras = tile["extras"]["spcodec"]
+            row = per_level.setdefault(extras["level"], [0, 0])
+            row[0], row[1] = row[0] + extras["gaussians"], row[1] + extras["bytes"]
+            stack.extend(tile.get("children", []))
         out = {"gaussians": summary.input_gaussians, "encoded": summary.encoded_gaussians,
                "bytes": summary.bytes, "nodes": summary.nodes, "depth": summary.depth,
+               "levels": {k: {"gaussians": g, "bytes": b} for k, (g, b) in sorted(per_level.items())},
                "partition_s": round(summary.partition_seconds, 2),
                "nodes_s": round(summary.nodes_seconds, 2)}
     seconds = time.perf_counter() - start
@@ -122,12 +144,102 @@ def merges(args: argparse.Namespace) -> None:
               flush=True)
 
 
+REPO = Path(__file__).resolve().parents[1]
+FRAMINGS = {"guitar": [], "donut": ["--up", "z", "--aa"]}
+"""two-framings.sh options per scene (its up axis; donut was trained antialiased)."""
+RESULTS = REPO / "docs" / "results" / "tiles_decimate.json"
+
+
+def splat_transform() -> str:
+    """The splat-transform command: ``$SPLAT_TRANSFORM`` or on PATH."""
+    tool = os.environ.get("SPLAT_TRANSFORM") or shutil.which("splat-transform")
+    if not tool:
+        raise SystemExit("decimate needs splat-transform on PATH or $SPLAT_TRANSFORM")
+    return tool
+
+
+def two_framings(original: Path, other: Path, options: list[str]) -> dict:
+    """PSNR of ``other`` against ``original`` in PlayCanvas at the orbit and close framings."""
+    script = Path(os.environ.get("SPCODEC_TWO_FRAMINGS", REPO.parent / "shared/tools/two-framings.sh"))
+    done = subprocess.run([str(script), str(original), str(other), *options], capture_output=True,
+                          text=True, cwd=REPO)
+    found = re.search(r"orbit ([\d.]+) dB, close ([\d.]+) dB", done.stdout)
+    if not found:
+        raise SystemExit(f"two-framings failed on {other}: {done.stdout.strip()} {done.stderr.strip()}")
+    return {"orbit_db": float(found.group(1)), "close_db": float(found.group(2))}
+
+
+def level_near(doc: dict, target: float) -> tuple[int, list[dict]]:
+    """(level, its tiles) of the tileset level whose Gaussian count is nearest ``target`` (by
+    ratio)."""
+    levels: dict[int, list[dict]] = {}
+    stack = [doc["root"]]
+    while stack:
+        tile = stack.pop()
+        levels.setdefault(tile["extras"]["spcodec"]["level"], []).append(tile)
+        stack.extend(tile.get("children", []))
+    count = {k: sum(t["extras"]["spcodec"]["gaussians"] for t in v) for k, v in levels.items()}
+    best = min(count, key=lambda k: abs(np.log(count[k] / target)))
+    return best, levels[best]
+
+
+def decimate(args: argparse.Namespace) -> None:
+    """Coarse level against splat-transform's decimation to the same count, per scene."""
+    from spcodec.decoder import decode
+    from spcodec.tiling import TilingConfig, build_tileset
+
+    tool = splat_transform()
+    shown = subprocess.run([tool, "-v"], capture_output=True, text=True)
+    version = (shown.stdout or shown.stderr).strip().splitlines()[0]
+    rows = []
+    for name in args.scenes:
+        original = data_dir() / REAL[name]
+        work = Path(args.work) / name
+        n = len(read_ply(original))
+        leaf = args.leaf_size or 1 << int(np.ceil(np.log2(n / 16)))
+        start = time.perf_counter()
+        summary = build_tileset(original, work / "tileset", TilingConfig(
+            leaf_size=leaf, branching=4, workers=0))
+        built = time.perf_counter() - start
+        doc = json.loads(summary.tileset.read_text())
+        level, chosen = level_near(doc, n / 16)
+        coarse = GaussianCloud.concat([decode(work / "tileset" / t["content"]["uri"]) for t in chosen])
+        ours = work / "level.ply"
+        write_ply(ours, coarse)
+        theirs = work / "decimated.ply"
+        start = time.perf_counter()
+        subprocess.run([tool, "-w", "-q", "-g", "cpu", str(original), "-F", str(len(coarse)),
+                        str(theirs)], check=True, capture_output=True)
+        decimated = time.perf_counter() - start
+        packed = work / "decimated.compressed.ply"
+        subprocess.run([tool, "-w", "-q", str(theirs), str(packed)], check=True, capture_output=True)
+        row = {"scene": name, "input": n, "leaf_size": leaf, "level": level,
+               "gaussians": len(coarse), "decimated_gaussians": len(read_ply(theirs)),
+               "level_bytes": sum(t["extras"]["spcodec"]["bytes"] for t in chosen),
+               "decimated_ply_bytes": theirs.stat().st_size,
+               "decimated_compressed_ply_bytes": packed.stat().st_size,
+               "tileset_seconds": round(built, 1), "decimate_seconds": round(decimated, 1),
+               "level_psnr": two_framings(original, ours, FRAMINGS[name]),
+               "decimated_psnr": two_framings(original, theirs, FRAMINGS[name])}
+        row["met"] = all(row["level_psnr"][k] >= row["decimated_psnr"][k] for k in ("orbit_db", "close_db"))
+        print(json.dumps(row), flush=True)
+        rows.append(row)
+    doc = {"command": "python bench/bench_tiles.py decimate --work DIR --scenes "
+                      + " ".join(args.scenes),
+           "splat_transform": version, "renderer": "../shared/tools/two-framings.sh (PlayCanvas)",
+           "rows": rows}
+    RESULTS.write_text(json.dumps(doc, indent=1) + "\n")
+    print(f"wrote {RESULTS.relative_to(REPO)}")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
     m = sub.add_parser("make")
     m.add_argument("--gaussians", type=int, default=2_000_000)
     m.add_argument("--base", default="fourth_st", choices=sorted(REAL))
+    m.add_argument("--layout", choices=["cube", "city"], default="cube",
+                   help="cube: copies of --base (tiled_scene); city: blocks of several scenes")
     m.add_argument("--seed", type=int, default=0)
     m.add_argument("-o", "--output", required=True)
     c = sub.add_parser("compare")
@@ -143,13 +255,20 @@ def main() -> None:
     r.add_argument("--output")
     r.add_argument("--workers", type=int, default=0)
     r.add_argument("--leaf-size", type=int, default=65536)
+    r.add_argument("--branching", type=int, default=4)
     g = sub.add_parser("merges")
     g.add_argument("tileset")
     g.add_argument("--nodes", type=int, default=4)
     g.add_argument("--views", type=int, default=4)
     g.add_argument("--size", type=int, default=256)
+    d = sub.add_parser("decimate")
+    d.add_argument("--work", required=True, help="scratch folder (tilesets, PLYs)")
+    d.add_argument("--scenes", nargs="+", default=list(FRAMINGS), choices=sorted(FRAMINGS))
+    d.add_argument("--leaf-size", type=int, default=0,
+                   help="default: the power of two at or above 1/16 of the scene, so the root is that level")
     args = p.parse_args()
-    {"make": make, "compare": compare, "run-one": run_one, "merges": merges}[args.command](args)
+    {"make": make, "compare": compare, "run-one": run_one, "merges": merges,
+     "decimate": decimate}[args.command](args)
 
 
 if __name__ == "__main__":

@@ -59,6 +59,54 @@ def tiled_scene(base: GaussianCloud, n: int, seed: int = 0) -> GaussianCloud:
     return GaussianCloud.concat(parts).subset(slice(0, n))
 
 
+CITY_BASES = ("fourth_st", "biker", "guitar", "kacytran")
+"""Shared scenes with one up axis (-y) that :func:`city_scene` lays out as blocks."""
+
+
+def city_scene(bases: list[GaussianCloud], n: int, seed: int = 0) -> GaussianCloud:
+    """``n`` Gaussians laid out like a city: copies of ``bases`` (the scenes drawn at random) on a
+    square grid in the ground plane (x, z; the bases' up axis is y), each turned by a random
+    angle about the up axis and set on the ground, with streets between blocks (pitch 1.2 x the
+    largest base's footprint). Unlike :func:`tiled_scene`'s cube of one scene, the layout is
+    flat and mixed, as a captured city is: many blocks side by side, of unequal density.
+    SH is padded to the highest degree among the bases.
+    """
+    rng = np.random.default_rng(seed)
+    extents = [b.means.max(axis=0) - b.means.min(axis=0) for b in bases]
+    pitch = 1.2 * max(float(np.hypot(e[0], e[2])) for e in extents)
+    sizes = np.array([len(b) for b in bases])
+    picks: list[int] = []
+    while sizes[picks].sum() < n:
+        picks.append(int(rng.integers(len(bases))))
+    side = int(np.ceil(np.sqrt(len(picks))))
+    parts = []
+    for k, pick in enumerate(picks):
+        part = bases[pick].subset(slice(None))
+        means = part.means.astype(np.float64)
+        centre = 0.5 * (means.min(axis=0) + means.max(axis=0))
+        angle = rng.uniform(0, 2 * np.pi)
+        c, s = np.cos(angle), np.sin(angle)
+        turn = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+        ground = centre[1] - means[:, 1].max()  # y is down: the block's largest y on the ground
+        part.means = ((means - centre) @ turn.T + [(k % side) * pitch, ground, (k // side) * pitch]
+                      ).astype(np.float32)
+        # turning the block turns every Gaussian's orientation with it (not its SH: view-dependent
+        # colour is off in turned blocks, which changes nothing the tiling measures)
+        half = angle / 2
+        turn_q = np.array([np.cos(half), 0.0, np.sin(half), 0.0])
+        part.quats = quat_multiply(turn_q, part.quats.astype(np.float64)).astype(np.float32)
+        parts.append(part)
+    return GaussianCloud.concat(parts).subset(slice(0, n))
+
+
+def quat_multiply(q: np.ndarray, quats: np.ndarray) -> np.ndarray:
+    """``q * quats[i]`` for (w, x, y, z) quaternions: ``quats`` turned by ``q``."""
+    w0, x0, y0, z0 = q
+    w, x, y, z = quats.T
+    return np.stack([w0 * w - x0 * x - y0 * y - z0 * z, w0 * x + x0 * w + y0 * z - z0 * y,
+                     w0 * y - x0 * z + y0 * w + z0 * x, w0 * z + x0 * y - y0 * x + z0 * w], axis=1)
+
+
 def load_scene(name: str) -> GaussianCloud:
     """A named benchmark scene (see the module docstring)."""
     if name in REAL:

@@ -36,13 +36,17 @@ def configure(p: argparse.ArgumentParser) -> None:
                    "workers)")
     p.add_argument("--seed", type=int, default=defaults.seed,
                    help="the encoder's seed: the same seed, the same bytes (default: %(default)s)")
+    p.add_argument("--keep-work", action="store_true",
+                   help="keep OUT/work/ after a successful build; by default it is removed, since "
+                   "its spilled leaves are as large as the input and only resume a failed build")
 
 
 def run(args: argparse.Namespace) -> int:
     from spcodec.tiling import TilingConfig, build_tileset
 
     config = TilingConfig(leaf_size=args.leaf_size, branching=args.branching, preset=args.preset,
-                          workers=args.workers, cluster=args.cluster, seed=args.seed)
+                          workers=args.workers, cluster=args.cluster, seed=args.seed,
+                           keep_work=args.keep_work)
     summary = build_tileset(args.input, args.output, config)
     print(f"{summary.tileset}: {summary.nodes} nodes ({summary.leaves} leaves, depth "
           f"{summary.depth}), {summary.input_gaussians:,} Gaussians in, "

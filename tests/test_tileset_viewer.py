@@ -33,8 +33,9 @@ CAMERA_X = -0.9
 """Where the camera stands on the x axis (tileset coordinates), looking along +x."""
 BUDGET = 7500
 """Gaussians drawn at most: the root's children and three of them refined, of 18,000 in all."""
-SSE = 40
-"""Screen-space error threshold (px) at the page's 240 px: near tiles refine, far ones stay coarse."""
+SSE = 16
+"""Screen-space error threshold (px) at the page's 240 px, the viewer's default: near tiles refine,
+far ones stay coarse."""
 TARGET_SHARE = 0.02
 """The issue's target: the whole scene on screen after at most 2 % of the tileset's bytes."""
 

@@ -19,14 +19,8 @@ from spcodec.ply import read_ply, write_ply
 from spcodec.synthetic import make_scene
 from spcodec.tiling import TilingConfig, build_tileset
 from spcodec.tiling.build import FAIL_ONCE_ENV
-from spcodec.tiling.merge import (
-    MAX_OPACITY,
-    covariances,
-    merge_groups,
-    merge_level,
-    neighbour_groups,
-    weights,
-)
+from spcodec.tiling.grouping import merge_level, pair_groups
+from spcodec.tiling.merge import MAX_OPACITY, covariances, merge_groups, weights
 from spcodec.tiling.partition import build_tree, input_identity, leaf_path, partition
 from spcodec.tiling.rows import cloud_to_rows, rows_to_cloud
 from spcodec.tiling.source import open_source
@@ -164,8 +158,8 @@ def clouds(draw):
 
 @given(cloud=clouds(), size=st.integers(1, 8))
 def test_merge_keeps_weight_mean_and_covariance(cloud, size):
-    labels, count = neighbour_groups(cloud.means.astype(np.float64), size)
-    assert count == -(-len(cloud) // size) and np.bincount(labels).max() <= size
+    labels, count = pair_groups(cloud, -(-len(cloud) // size))
+    assert count == -(-len(cloud) // size) and np.array_equal(np.unique(labels), np.arange(count))
     merged = merge_groups(cloud, labels, count).cloud
     w = weights(cloud)
     total = np.bincount(labels, w, count)
@@ -246,7 +240,8 @@ def test_a_second_run_does_no_work(built, scene_ply):
 def test_two_local_workers_retry_a_failed_node_and_a_rerun_resumes(small_ply, tmp_path,
                                                                     monkeypatch):
     monkeypatch.setenv(FAIL_ONCE_ENV, "n0")
-    summary = build_tileset(small_ply, tmp_path, TilingConfig(**SMALL, workers=2, retries=1))
+    summary = build_tileset(small_ply, tmp_path, TilingConfig(**SMALL, workers=2, retries=1,
+                                                              keep_work=True))
     assert (tmp_path / "work" / "failed-once-n0").exists()  # the first attempt did fail
     assert summary.nodes == 3 and summary.encoded_nodes == 3
     check_tileset(tmp_path, summary.input_gaussians)

@@ -2,8 +2,9 @@
 
 :func:`build_tileset` reads the input in chunks (:mod:`.source`), partitions it in two passes
 into a median k-d tree (:mod:`.partition`), merges children into coarser levels of detail
-(:mod:`.merge`), encodes every node on its own with the no-retrain encoder (:mod:`.build`), as
-tasks on Dask (:mod:`.jobs`), and writes the index (:mod:`.tileset`; ``spec/tileset.md``).
+(:mod:`.grouping` picks the groups, :mod:`.merge` merges them), encodes every node on its own
+with the no-retrain encoder (:mod:`.build`), as tasks on Dask (:mod:`.jobs`), and writes the
+index (:mod:`.tileset`; ``spec/tileset.md``).
 ``python -m spcodec.tiling IN.ply -o OUT/`` runs it from a shell.
 """
 

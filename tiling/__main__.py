@@ -27,13 +27,17 @@ def parser() -> argparse.ArgumentParser:
                    help="local worker processes; 0 runs in this process")
     p.add_argument("--cluster", help="address of a running Dask scheduler (tcp://host:8786)")
     p.add_argument("--seed", type=int, default=defaults.seed)
+    p.add_argument("--keep-work", action="store_true",
+                   help="keep OUT/work/ (spilled leaves, as large as the input; they only resume a "
+                        "failed build)")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     config = TilingConfig(leaf_size=args.leaf_size, branching=args.branching, preset=args.preset,
-                          workers=args.workers, cluster=args.cluster, seed=args.seed)
+                          workers=args.workers, cluster=args.cluster, seed=args.seed,
+                          keep_work=args.keep_work)
     try:
         summary = build_tileset(args.input, args.output, config)
     except (SpcodecError, OSError) as exc:

@@ -2,14 +2,17 @@
 
 Each node is an ordinary ``.spc`` made by the no-retrain encoder (``nodes/<id>.spc``); a leaf
 encodes its share of the input, an inner node the merge of its children's Gaussians
-(:mod:`.merge`), so every node holds about ``leaf_size`` Gaussians and one encode's memory follows
+(:mod:`.grouping`), so every node holds about ``leaf_size`` Gaussians and one encode's memory follows
 that setting, not the scene. Beside each file a small JSON records the digest of what the node was
 made from; a re-run whose digest matches reuses the file (resume after a crash or a new setting).
 
 Geometric error (the 3D Tiles field that drives refinement): 0 at a leaf, which holds the input
-itself; at an inner node, the merge's spatial error (the largest distance from a merged centre to
-a centre it replaced, :func:`.merge.merge_level`), raised to its children's largest, so it never
-grows down the tree.
+itself; at an inner node, the merge's spatial error (a high quantile, by weight, of how far the
+Gaussians it replaced moved, :func:`.grouping.merge_level`) plus the largest of its children's. An
+input Gaussian reaches the node through one merge per level, and by the triangle inequality it
+has moved at most the sum of those moves, so the error grows with every level up the tree, as
+the detail a coarser level loses does; the largest single move, used before, was set by a few
+stray Gaussians and hardly grew from level to level.
 """
 
 from __future__ import annotations
@@ -26,14 +29,15 @@ import numpy as np
 
 from spcodec.fileio import atomic_write
 
-from .merge import covariances, merge_level
+from .grouping import merge_level
+from .merge import MergedLevel, covariances
 from .partition import leaf_path
 from .rows import cloud_to_rows, rows_to_cloud
 
 FAIL_ONCE_ENV = "SPCODEC_TILING_FAIL_ONCE"
 """Test hook: node ids (comma-separated) whose first attempt raises, to exercise retries."""
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 """Bumped when a node's content would change for the same input (part of every digest)."""
 
 
@@ -61,15 +65,16 @@ def build_node(job: NodeJob, children: list[dict]) -> dict:
     record_path = out / "nodes" / f"{job.id}.json"
     previous = _reusable(record_path, digest, out, job)
     if previous is not None:
+        if not cloud_path(out, job).is_file():  # the work folder was removed: the parent merges it
+            _save_rows(cloud_path(out, job), cloud_to_rows(merge_children(out, job, children).cloud))
         return {**previous, "encoded": False}
     record_path.unlink(missing_ok=True)  # its files are about to change: never pair old and new
     _maybe_fail(job.id, out)
     start = time.perf_counter()
     if job.children:
-        finer = rows_to_cloud(np.concatenate([np.load(out / c["cloud"]) for c in children]))
-        level = merge_level(finer, job.branching)
-        cloud, error, capped = level.cloud, level.spatial_error, level.capped
-        error = max([error] + [c["error"] for c in children])
+        level = merge_children(out, job, children)
+        cloud, capped = level.cloud, level.capped
+        error = level.spatial_error + max(c["error"] for c in children)
         _save_rows(cloud_path(out, job), cloud_to_rows(cloud))
     else:
         cloud, error, capped = rows_to_cloud(np.load(leaf_path(out / "work", job.id))), 0.0, 0
@@ -88,6 +93,12 @@ def build_node(job: NodeJob, children: list[dict]) -> dict:
               "seconds": time.perf_counter() - start}
     atomic_write(record_path, json.dumps(record).encode())
     return {**record, "encoded": True}
+
+
+def merge_children(out: Path, job: NodeJob, children: list[dict]) -> MergedLevel:
+    """The coarser level of an inner node: its children's Gaussians merged (deterministic)."""
+    finer = rows_to_cloud(np.concatenate([np.load(out / c["cloud"]) for c in children]))
+    return merge_level(finer, job.branching)
 
 
 def encoder_config(job: NodeJob):
@@ -127,15 +138,14 @@ def content_box(cloud) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _reusable(record_path: Path, digest: str, out: Path, job: NodeJob) -> dict | None:
-    """The recorded node when its file exists and was made from the same input."""
+    """The recorded node when its file exists and was made from the same input (its merged
+    Gaussians, which only its parent needs, may be missing: the caller makes them again)."""
     try:
         record = json.loads(record_path.read_text())
     except (OSError, ValueError):
         return None
     spc = out / "nodes" / f"{job.id}.spc"
     if record.get("digest") != digest or not spc.is_file() or spc.stat().st_size != record["bytes"]:
-        return None
-    if not cloud_path(out, job).is_file():  # the parent merges it
         return None
     return record
 

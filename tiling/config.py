@@ -33,6 +33,11 @@ class TilingConfig:
     """Rows read from the input at a time (the partition's peak memory besides the centres)."""
     retries: int = 2
     """Times the engine re-runs a failed node task before the build fails."""
+    keep_work: bool = False
+    """Keep ``work/`` after a successful build. It holds the spilled leaves (a copy of the whole
+    input) and the merged levels, needed only to resume a build that failed, so by default a
+    finished tileset is left without it; a re-run then reads the input again but re-encodes
+    nothing."""
 
     def check(self) -> None:
         """One-line UsageError for a setting that cannot work."""

@@ -1,19 +1,26 @@
-"""Coarser levels of detail: neighbouring Gaussians merged into one that keeps their moments.
+"""Coarser levels of detail: a group of neighbouring Gaussians merged into one that keeps their
+moments (the groups are chosen by :mod:`.grouping`).
 
-A group of neighbours (``branching`` of them, found by median splits, so a level has
-``ceil(n / branching)`` Gaussians) becomes one Gaussian:
+A group becomes one Gaussian:
 
-* weight ``w_i = opacity_i * volume_i`` (``volume = sx * sy * sz``, proportional to the integral
-  of the Gaussian's density: what it contributes to the picture);
+* weight ``w_i = opacity_i * area_i``, ``area`` the surface area of the ellipsoid of the scales
+  (:func:`ellipsoid_area`). What a Gaussian puts into a picture is its opacity times its projected
+  footprint, and a convex body's projected area averaged over all directions is a quarter of its
+  surface area (Cauchy), so this is its contribution seen from anywhere. The volume, taken before,
+  gave a flat Gaussian (most of a trained scene) almost no say in the merged colour and shape;
 * mean and covariance from the weighted first and second moments,
   ``mu = sum w_i mu_i / W`` and ``Sigma = sum w_i (Sigma_i + (mu_i - mu)(mu_i - mu)^T) / W``;
   rotation and scales from the eigen-decomposition of ``Sigma``;
 * colour and every SH coefficient: ``w``-weighted averages;
-* opacity so that the merged footprint keeps the total weight, ``opacity = W / volume``, capped
-  below 1 (:data:`MAX_OPACITY`): where the cap binds, the weight is the only moment not kept.
+* opacity so that the merged footprint keeps the total weight, ``opacity = W / area``, capped
+  below 1 (:data:`MAX_OPACITY`). The cap binds where opaque Gaussians overlap; there the weights
+  do not add up in a picture (the front one hides the one behind), so the weight beyond the cap
+  is mostly light that was never seen. Growing the footprint to keep it instead was tried and
+  made the coarse levels blurrier, not better (docs/LOG.md, tilesets).
 
-The spatial error of a merge is the largest distance from a merged Gaussian's centre to the
-centre of a Gaussian it replaced: how far any detail moved (:func:`merge_level`).
+The spatial error of a merge (:func:`merge_groups`) is a high quantile of how far the Gaussians it
+replaced moved, weighted by their weight (:data:`ERROR_QUANTILE`): how far the detail a viewer
+sees moved, not the one stray Gaussian that moved furthest.
 """
 
 from __future__ import annotations
@@ -24,10 +31,17 @@ import numpy as np
 
 from spcodec.cloud import GaussianCloud
 
-from .partition import median_split
-
 MAX_OPACITY = 0.9999
 """Cap on a merged Gaussian's opacity (its logit must stay finite)."""
+
+ERROR_QUANTILE = 0.9
+"""Share of the replaced weight whose move the spatial error bounds (:func:`weighted_quantile`)."""
+
+AREA_EXPONENT = 1.6075
+"""Exponent of Thomsen's formula for an ellipsoid's surface area (within 1.1 % for every shape)."""
+
+MIN_OPACITY = 1e-12
+"""Floor on a merged opacity (a group of fully transparent Gaussians has weight 0)."""
 
 MIN_VARIANCE = 1e-24
 """Floor on a merged covariance's eigenvalues (a single flat Gaussian has a zero one)."""
@@ -39,9 +53,10 @@ class MergedLevel:
 
     cloud: GaussianCloud
     spatial_error: float
-    """Largest distance from a merged centre to a centre it replaced (scene units)."""
+    """The :data:`ERROR_QUANTILE` quantile, by weight, of the distances from a merged centre to
+    the centres it replaced (scene units)."""
     capped: int
-    """Merged Gaussians whose opacity hit :data:`MAX_OPACITY` (their weight is not kept)."""
+    """Merged Gaussians whose opacity hit :data:`MAX_OPACITY` (their weight is not all kept)."""
 
 
 def quat_to_matrix(quats: np.ndarray) -> np.ndarray:
@@ -85,26 +100,37 @@ def covariances(cloud: GaussianCloud) -> np.ndarray:
     return np.einsum("nij,nj,nkj->nik", rot, var, rot)
 
 
+def ellipsoid_area(log_scales: np.ndarray) -> np.ndarray:
+    """Surface area of the ellipsoids of semi-axes ``exp(log_scales)`` (Thomsen's formula),
+    float64. Products are formed in log space, so scales of 1e-10 do not underflow."""
+    p = AREA_EXPONENT * np.asarray(log_scales, np.float64)
+    pairs = np.stack([p[:, 0] + p[:, 1], p[:, 0] + p[:, 2], p[:, 1] + p[:, 2]], axis=1)
+    top = pairs.max(axis=1, keepdims=True)
+    mean = np.exp(pairs - top).mean(axis=1)
+    return 4.0 * np.pi * np.exp((top[:, 0] + np.log(mean)) / AREA_EXPONENT)
+
+
 def weights(cloud: GaussianCloud) -> np.ndarray:
-    """Each Gaussian's weight: opacity times volume ``sx * sy * sz`` (float64)."""
+    """Each Gaussian's weight: opacity times the surface area of its ellipsoid (float64)."""
     alpha = 1.0 / (1.0 + np.exp(-cloud.opacities.astype(np.float64)))
-    return alpha * np.exp(cloud.scales.astype(np.float64).sum(axis=1))
+    return alpha * ellipsoid_area(cloud.scales)
 
 
-def neighbour_groups(means: np.ndarray, size: int) -> tuple[np.ndarray, int]:
-    """A group number per Gaussian: ``ceil(n / size)`` groups of at most ``size`` neighbours, cut
-    by median splits (each cut leaves a multiple of ``size`` on its left, so groups are full)."""
-    labels = np.empty(len(means), np.int64)
-    stack, group = [np.arange(len(means))], 0
-    while stack:
-        index = stack.pop()
-        if len(index) <= size:
-            labels[index] = group
-            group += 1
-            continue
-        groups = -(-len(index) // size)
-        stack.extend(median_split(means, index, size * (-(-groups // 2))))
-    return labels, group
+def fit_opacity(total: np.ndarray, log_scales: np.ndarray) -> np.ndarray:
+    """The opacity that gives a Gaussian of ``log_scales`` the weight ``total``, kept within
+    ``[MIN_OPACITY, MAX_OPACITY]`` (see the module docstring for why the cap stays)."""
+    return np.clip(total / ellipsoid_area(log_scales), MIN_OPACITY, MAX_OPACITY)
+
+
+def weighted_quantile(values: np.ndarray, weight: np.ndarray, q: float) -> float:
+    """The smallest value below which at least ``q`` of the total weight lies (0 when empty)."""
+    if len(values) == 0:
+        return 0.0
+    order = np.argsort(values)
+    cumulative = np.cumsum(weight[order])
+    if cumulative[-1] <= 0:
+        return float(values[order[-1]])
+    return float(values[order[min(np.searchsorted(cumulative, q * cumulative[-1]), len(order) - 1)]])
 
 
 def merge_groups(cloud: GaussianCloud, labels: np.ndarray, count: int) -> MergedLevel:
@@ -128,16 +154,10 @@ def merge_groups(cloud: GaussianCloud, labels: np.ndarray, count: int) -> Merged
     var = np.maximum(var, MIN_VARIANCE)
     vec[:, :, 2] *= np.sign(np.linalg.det(vec))[:, None]  # a proper rotation
     log_scales = 0.5 * np.log(var)
-    alpha = np.minimum(total / np.exp(log_scales.sum(axis=1)), MAX_OPACITY)
+    alpha = fit_opacity(total, log_scales)
     moved = np.linalg.norm(offset, axis=1)
     merged = GaussianCloud(means=mean, scales=log_scales, quats=matrix_to_quat(vec),
                            opacities=np.log(alpha / (1.0 - alpha)), sh_dc=average(cloud.sh_dc),
                            sh_rest=average(cloud.sh_rest))
-    return MergedLevel(merged, float(moved.max()) if len(moved) else 0.0,
+    return MergedLevel(merged, weighted_quantile(moved, w, ERROR_QUANTILE),
                        int((alpha >= MAX_OPACITY).sum()))
-
-
-def merge_level(cloud: GaussianCloud, branching: int) -> MergedLevel:
-    """``cloud`` reduced ``branching`` times by merging groups of neighbours."""
-    labels, count = neighbour_groups(cloud.means.astype(np.float64), branching)
-    return merge_groups(cloud, labels, count)

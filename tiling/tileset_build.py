@@ -6,6 +6,7 @@ do not import each other."""
 from __future__ import annotations
 
 import os
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,8 +43,8 @@ class TilingSummary:
 def build_tileset(input_path: str | os.PathLike, out_dir: str | os.PathLike,
                   config: TilingConfig | None = None) -> TilingSummary:
     """Encode the scene at ``input_path`` as a 3D Tiles 1.1 tileset of ``.spc`` nodes in
-    ``out_dir`` (``tileset.json``, ``nodes/``, and ``work/``: the spilled leaves and merged
-    levels a re-run resumes from)."""
+    ``out_dir`` (``tileset.json``, ``nodes/``, and while it runs ``work/``: the spilled leaves
+    and merged levels a re-run resumes from, removed at the end unless ``config.keep_work``)."""
     config = config or TilingConfig()
     config.check()
     out = Path(out_dir)
@@ -63,6 +64,8 @@ def build_tileset(input_path: str | os.PathLike, out_dir: str | os.PathLike,
     finished = time.perf_counter()
     path = write_tileset(out, parts, records)
     remove_stale_nodes(out, parts)
+    if not config.keep_work:
+        shutil.rmtree(out / "work")
     return TilingSummary(
         tileset=path, nodes=len(parts.nodes), leaves=len(parts.leaves),
         depth=max(len(n) for n in parts.nodes) - 1, input_gaussians=source.count,

@@ -1,0 +1,166 @@
+"""Levels of detail of a tileset: the merge's weights, its spatial error, the geometric error that
+grows up the tree, and the work folder a finished build leaves (or not)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from spcodec.cloud import GaussianCloud
+from spcodec.ply import read_ply, write_ply
+from spcodec.synthetic import make_scene
+from spcodec.tiling import TilingConfig, build_tileset
+from spcodec.tiling.grouping import merge_level, pair_groups
+from spcodec.tiling.merge import MAX_OPACITY, ellipsoid_area, fit_opacity, weighted_quantile
+
+from conftest import REPO, real_file
+
+pytestmark = pytest.mark.usefixtures("single_torch_thread")
+
+
+def tiles(node: dict, parent: dict | None = None):
+    yield node, parent
+    for child in node.get("children", []):
+        yield from tiles(child, node)
+
+
+# ------------------------------------------------------------------------- the weights
+@given(log_r=st.floats(-12, 3))
+def test_a_sphere_s_area_is_four_pi_r_squared(log_r):
+    area = ellipsoid_area(np.full((1, 3), log_r))[0]
+    assert area == pytest.approx(4 * np.pi * np.exp(2 * log_r), rel=1e-9)
+
+
+@given(a=st.floats(-8, 2), b=st.floats(-8, 2))
+def test_a_flat_ellipsoid_s_area_is_both_faces_of_its_disc(a, b):
+    """Thomsen's formula is within 1.1 % of the true area for every shape, a disc included."""
+    area = ellipsoid_area(np.array([[a, b, min(a, b) - 25.0]]))[0]
+    assert area == pytest.approx(2 * np.pi * np.exp(a + b), rel=0.011)
+
+
+def test_a_flat_gaussian_weighs_by_its_footprint_not_its_volume():
+    """Two Gaussians of one opacity and footprint, one 1000x thinner: the same weight within the
+    flat one's lost rim (its volume is 1000x smaller), so the merge takes both alike."""
+    thick, flat = np.log([[0.1, 0.1, 0.01]]), np.log([[0.1, 0.1, 0.00001]])
+    ratio = ellipsoid_area(thick)[0] / ellipsoid_area(flat)[0]
+    assert 1.0 < ratio < 1.1
+
+
+def test_opacity_stays_within_its_bounds():
+    log_scales = np.log(np.full((3, 3), 0.1))
+    area = ellipsoid_area(log_scales)
+    alpha = fit_opacity(np.array([0.0, 0.5, 3.0]) * area, log_scales)
+    assert alpha[0] > 0 and alpha[1] == pytest.approx(0.5) and alpha[2] == MAX_OPACITY
+
+
+# ---------------------------------------------------------------------------- grouping
+def cloud_at(means: np.ndarray, log_scale: float = -3.0, opacity: float = 0.0) -> GaussianCloud:
+    n = len(means)
+    return GaussianCloud(means=means, scales=np.full((n, 3), log_scale),
+                         quats=np.tile([1.0, 0, 0, 0], (n, 1)), opacities=np.full(n, opacity),
+                         sh_dc=np.zeros((n, 3)), sh_rest=np.zeros((n, 0, 3)))
+
+
+@given(n=st.integers(1, 200), distinct=st.integers(1, 6), size=st.sampled_from([2, 4, 8]),
+       seed=st.integers(0, 2 ** 16))
+def test_pairing_reaches_the_count_even_with_duplicate_centres(n, distinct, size, seed):
+    """Many Gaussians on a few points (a Gaussian need not come first among its own neighbours)."""
+    rng = np.random.default_rng(seed)
+    points = rng.normal(size=(distinct, 3))
+    cloud = cloud_at(points[rng.integers(0, distinct, n)])
+    labels, count = pair_groups(cloud, -(-n // size))
+    assert count == -(-n // size) and np.array_equal(np.unique(labels), np.arange(count))
+
+
+def test_two_large_opaque_gaussians_are_not_merged_while_faint_ones_can_be():
+    """Two large opaque Gaussians side by side among faint small ones, halved: fixed groups of
+    neighbours would merge whatever lies together; the pair cost leaves the large two apart."""
+    rng = np.random.default_rng(0)
+    means = np.concatenate([[[0.0, 0.0, 0.0], [0.02, 0.0, 0.0]], rng.normal(0, 0.05, (62, 3))])
+    cloud = cloud_at(means, log_scale=-4.0, opacity=-3.0)
+    cloud.scales[:2], cloud.opacities[:2] = -1.0, 4.0
+    labels, count = pair_groups(cloud, 32)
+    assert count == 32 and labels[0] != labels[1]
+
+
+# ---------------------------------------------------------------------- spatial error
+@given(values=st.lists(st.floats(0, 100), min_size=1, max_size=60), q=st.floats(0.01, 1.0))
+def test_weighted_quantile_with_equal_weights_is_the_order_statistic(values, q):
+    v = np.array(values)
+    got = weighted_quantile(v, np.ones(len(v)), q)
+    assert got == np.sort(v)[max(int(np.ceil(q * len(v) - 1e-9)) - 1, 0)]
+
+
+def test_one_stray_gaussian_does_not_set_the_spatial_error():
+    """The largest move (the measure before) followed a single Gaussian far from the rest; the
+    weighted quantile follows the scene."""
+    cloud = make_scene(seed=3, curves=4, per_curve=250, blobs=1400, sh_degree=0).cloud
+    base = merge_level(cloud, 4).spatial_error
+    stray = cloud.subset(slice(0, 1))
+    stray.means = stray.means + 1000.0
+    spoiled = merge_level(GaussianCloud.concat([cloud, stray]), 4).spatial_error
+    assert 0 < base and spoiled < 1.5 * base
+
+
+def load_bench_scenes():
+    spec = importlib.util.spec_from_file_location("scenes", REPO / "bench" / "scenes.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.slow
+def test_geometric_error_grows_with_every_level_of_a_real_scene(tmp_path):
+    """guitar, a quarter of it, in a tree three levels deep: every tile's error at least 1.5x the
+    largest of its children's (the largest move, used before, stayed nearly level)."""
+    scenes = load_bench_scenes()
+    cloud = read_ply(real_file(scenes.REAL["guitar"]))
+    path = tmp_path / "guitar.ply"
+    write_ply(path, cloud.subset(slice(0, len(cloud) // 4)))
+    build_tileset(path, tmp_path / "out", TilingConfig(leaf_size=2048, branching=4, workers=0))
+    doc = json.loads((tmp_path / "out" / "tileset.json").read_text())
+    depth = max(t["extras"]["spcodec"]["level"] for t, _ in tiles(doc["root"]))
+    assert depth >= 2
+    for tile, _ in tiles(doc["root"]):
+        children = [c["geometricError"] for c in tile.get("children", [])]
+        if children:
+            assert tile["geometricError"] >= 1.5 * max(children) > 0 or max(children) == 0
+            assert tile["geometricError"] > 0
+
+
+# ------------------------------------------------------------------------ the work folder
+@pytest.fixture
+def small_ply(tmp_path) -> Path:
+    path = tmp_path / "small.ply"
+    write_ply(path, make_scene(seed=1, curves=2, per_curve=250, blobs=900, sh_degree=1).cloud)
+    return path
+
+
+def test_a_finished_build_removes_its_work_and_a_rerun_encodes_nothing(small_ply, tmp_path):
+    out = tmp_path / "out"
+    config = TilingConfig(leaf_size=700, branching=2, workers=0)
+    first = build_tileset(small_ply, out, config)
+    assert not (out / "work").exists()
+    index = (out / "tileset.json").read_bytes()
+    stamps = {p.name: p.stat().st_mtime_ns for p in (out / "nodes").iterdir()}
+    again = build_tileset(small_ply, out, config)
+    assert again.encoded_nodes == 0 and again.bytes == first.bytes
+    assert (out / "tileset.json").read_bytes() == index and not (out / "work").exists()
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "nodes").iterdir()} == stamps
+
+
+def test_keep_work_keeps_the_spilled_leaves(small_ply, tmp_path, capsys):
+    from spcodec.cli import main as spcodec
+
+    out = tmp_path / "out"
+    assert spcodec(["tile", str(small_ply), "-o", str(out), "--leaf-size", "700", "--branching", "2",
+                    "--workers", "0", "--keep-work"]) == 0
+    leaves = sorted(p.name for p in (out / "work" / "leaves").iterdir())
+    assert leaves == ["n0.npy", "n1.npy"]
+    assert (out / "work" / "clouds" / "n.npy").is_file()

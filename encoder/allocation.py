@@ -35,7 +35,7 @@ from spcodec.sections import Codebook, pack_positions
 
 from .config import AllocationConfig, EncoderConfig, PatchConfig
 from .morton import morton_codes
-from .patch import assign_attribute, coded_attributes, encode_positions, train_codebook
+from .patch import coded_attributes, encode_positions, final_codebook, train_codebook
 
 LADDERS: dict[str, tuple[int, ...]] = {
     "SCALE": (3, 1), "ROTATION": (4, 2, 1), "OPACITY": (1,), "COLOR_DC": (3, 1),
@@ -56,16 +56,22 @@ class Option:
     codebook_bytes: int
     distortion: float
     """Predicted image MSE the option adds over the whole patch (both framings, weighted)."""
+    bit_cost: float = 0.0
+    """ECVQ's cost per index bit (:mod:`.ecvq`, in the k-means objective's units); 0: nearest
+    entries."""
+    zero_entry: bool = False
+    """Whether the codebook holds the exact zero entry of an SH band (``sh_zero_entry``)."""
 
     def bytes_for(self, count: int) -> float:
         return count * self.index_bits / 8 + self.codebook_bytes
 
     @property
     def key(self) -> tuple:
-        return (self.attribute, self.entry_dim, self.entries)
+        return (self.attribute, self.entry_dim, self.entries, self.bit_cost)
 
     def describe(self) -> dict:
-        return {"entry_dim": self.entry_dim, "entries": self.entries}
+        out = {"entry_dim": self.entry_dim, "entries": self.entries}
+        return {**out, "ecvq_bit_cost": self.bit_cost} if self.bit_cost > 0 else out
 
 
 @dataclass(frozen=True)
@@ -114,7 +120,17 @@ class Allocation:
         return dataclasses.replace(
             base, entry_dims={a: o.entry_dim for a, o in codebooks.items()},
             entry_counts={a: o.entries for a, o in codebooks.items()},
-            position_bits=base.position_bits if grid is None else grid.bits)
+            position_bits=base.position_bits if grid is None else grid.bits,
+            **self._ecvq(base))
+
+    def _ecvq(self, base: PatchConfig) -> dict:
+        """The ECVQ fields of the patch config: the chosen options' costs per bit, when any
+        chose ECVQ (else ``base``'s own)."""
+        codebooks = [(a, o) for a, o in self.options.items() if isinstance(o, Option)]
+        costs = {a: o.bit_cost for a, o in codebooks if o.bit_cost > 0}
+        zero = base.sh_zero_entry or any(o.zero_entry for _, o in codebooks)
+        return {"ecvq": True, "ecvq_bit_costs": costs, "sh_zero_entry": zero} if costs else \
+            {"sh_zero_entry": zero}
 
     def describe(self) -> dict:
         return {a: o.describe() for a, o in self.options.items()}
@@ -145,14 +161,18 @@ class PrecisionSearch:
         framing = {name: s.subset(rows) for name, s in sensitivity.items()}
         weight = config.linearized_weights()
         sample_weights = None if weights is None else np.asarray(weights)[rows]
+        if config.ecvq_strengths:  # ECVQ can then drop an SH band per Gaussian
+            base = dataclasses.replace(base, sh_zero_entry=True)
         options: dict[str, list[Option]] = {}
         for index, (attr, coded) in enumerate(coded_attributes(sample).items()):
             options[attr.name] = [
-                _measure_option(sample, attr, coded, dim, entries, sample_weights, base,
-                                seed + 7919 * index, framing, weight, scale)
+                option
                 for dim in LADDERS[attr.name]
                 for entries in sorted({min(c, _distinct(coded, dim))
-                                       for c in config.entry_counts}, reverse=True)]
+                                       for c in config.entry_counts}, reverse=True)
+                for option in _measure_options(sample, attr, coded, dim, entries, sample_weights,
+                                               base, seed + 7919 * index, framing, weight, scale,
+                                               config.ecvq_strengths)]
         return cls(options, n, config)
 
     def with_positions(self, options: list[PositionOption]) -> "PrecisionSearch":
@@ -171,7 +191,8 @@ class PrecisionSearch:
                 chosen[name] = same[0] if same else max(opts, key=lambda o: o.bits)
                 continue
             dim = entry_dims.get(name, max(o.entry_dim for o in opts))
-            same = [o for o in opts if o.entry_dim == dim] or opts
+            nearest = [o for o in opts if o.bit_cost == 0]
+            same = [o for o in nearest if o.entry_dim == dim] or nearest
             chosen[name] = max(same, key=lambda o: o.entries)
         return Allocation(chosen, self.count)
 
@@ -226,20 +247,56 @@ class PrecisionSearch:
             best = Allocation({**best.options, name: option}, best.count)
 
 
-def _measure_option(sample: GaussianCloud, attr: PatchAttribute, coded: np.ndarray, dim: int,
-                    entries: int, weights: np.ndarray | None, base: PatchConfig, seed: int,
-                    framing: dict[str, Sensitivity], weight: dict[str, float],
-                    scale: float) -> Option:
-    """One codebook of ``attr`` trained on the sample, its index bits, and the image MSE its
-    values predict over the framings, scaled from the sample to the whole patch."""
-    codebook = train_codebook(coded, dim, entries, weights, base, seed)
-    idx = assign_attribute(attr, coded, codebook)
+def _measure_options(sample: GaussianCloud, attr: PatchAttribute, coded: np.ndarray, dim: int,
+                     entries: int, weights: np.ndarray | None, base: PatchConfig, seed: int,
+                     framing: dict[str, Sensitivity], weight: dict[str, float], scale: float,
+                     strengths: tuple[float, ...] = ()) -> list[Option]:
+    """One codebook of ``attr`` trained on the sample, with nearest indices and then ECVQ's at
+    each of ``strengths`` (a bit costs that many times the nearest indices' mean weighted error
+    per group): each its index bits and the image MSE its values predict over the framings,
+    scaled from the sample to the whole patch. The ECVQ variants compete in the search like any
+    other option, so one multiplier picks both the codebook and how hard ECVQ trades."""
+    trained = train_codebook(coded, dim, entries, weights, base, seed)
+    codebook, idx = final_codebook(attr, coded, trained, weights, 0.0, base.ecvq_iterations,
+                                   base.sh_zero_entry)
+    zero = base.sh_zero_entry and attr >= PatchAttribute.SH_BAND_1
+    out = [_option(sample, attr, codebook, idx, 0.0, framing, weight, scale, zero, len(trained))]
+    if attr is PatchAttribute.ROTATION and dim == 1:
+        return out  # scalar rotations keep their own search (final_codebook)
+    per_group = _weighted_error(coded, codebook.entries, idx, weights) / max(idx.size, 1)
+    for strength in strengths:
+        cost = strength * per_group
+        if cost > 0:
+            book, ecvq_idx = final_codebook(attr, coded, trained, weights, cost,
+                                            base.ecvq_iterations, base.sh_zero_entry)
+            out.append(_option(sample, attr, book, ecvq_idx, cost, framing, weight, scale, zero,
+                               len(trained)))
+    return out
+
+
+def _option(sample: GaussianCloud, attr: PatchAttribute, codebook: Codebook, idx: np.ndarray,
+            bit_cost: float, framing: dict[str, Sensitivity], weight: dict[str, float],
+            scale: float, zero_entry: bool, trained: int) -> Option:
+    """The measured option of ``codebook`` and the sample's indices ``idx`` into it; ``trained``
+    entries were asked of k-means (the zero entry, when added, is not among them: an encoder
+    given this option's count adds it again)."""
     changed = sample.subset(np.arange(len(sample)))
-    fill_patch_attributes({attr: idx.T}, [Codebook(attr, codebook)], changed)
+    fill_patch_attributes({attr: idx.T}, [codebook], changed)
     mse = sum(weight.get(name, 1.0) * float(s.mse(sample, changed).sum())
               for name, s in framing.items())
-    return Option(attr.name, dim, len(codebook), _index_bits(idx), int(codebook.size * 2),
-                  mse * scale)
+    entries = codebook.entries
+    return Option(attr.name, entries.shape[1], trained, _index_bits(idx), int(entries.size * 2),
+                  mse * scale, bit_cost, zero_entry)
+
+
+def _weighted_error(coded: np.ndarray, codebook: np.ndarray, indices: np.ndarray,
+                    weights: np.ndarray | None) -> float:
+    """The k-means objective of ``indices``: each group's squared error in the coded domain
+    times its Gaussian's weight (1 when unweighted), summed."""
+    n, width = coded.shape
+    chosen = codebook.astype(np.float64)[indices].reshape(n, width)
+    error = ((coded - chosen) ** 2).sum(axis=1)
+    return float(error.sum() if weights is None else (np.asarray(weights) * error).sum())
 
 
 def _distinct(coded: np.ndarray, dim: int) -> int:

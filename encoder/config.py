@@ -393,6 +393,22 @@ class PatchConfig:
     #: Code index columns given earlier ones where that makes the file smaller (format 1.2's
     #: PATCH_INDEX_CONTEXTS, chosen by measurement in encoder/contexts.py); False: 1.0 coding.
     index_contexts: bool = True
+    #: Entropy-constrained assignment (encoder/ecvq.py): each group goes to the entry minimizing
+    #: its weighted error plus a cost per index bit, the entries re-estimated in turn, so the
+    #: index histogram grows skewed and its Huffman code shorter. Only where ``ecvq_bit_costs``
+    #: names the attribute; False: nearest entries (DECISIONS D-27).
+    ecvq: bool = False
+    #: ECVQ's cost per index bit of each attribute, by name, in the k-means objective's units
+    #: (importance-weighted squared error in the coded domain); the precision search sets it
+    #: from the ECVQ options it chose (``AllocationConfig.ecvq_strengths``). None or absent:
+    #: nearest entries.
+    ecvq_bit_costs: dict[str, float] | None = None
+    #: Rounds of code lengths, assignment and centroids.
+    ecvq_iterations: int = 3
+    #: Every SH band's codebook holds an exact zero entry: under ECVQ a Gaussian whose view
+    #: dependence does not pay for its bits lands there and drops that band, an SH degree per
+    #: Gaussian (DECISIONS D-27). The precision search sets it with its ECVQ options.
+    sh_zero_entry: bool = False
 
     @property
     def stored_position_bits(self) -> int:
@@ -422,6 +438,15 @@ class AllocationConfig:
     #: rendered (encoder/allocation.py, position_options). Empty: positions stay at the
     #: preset's grid.
     position_bits: tuple[int, ...] = (12, 13, 14, 15, 16)
+    #: ECVQ variants of every codebook option (encoder/ecvq.py): for each strength, the same
+    #: codebook with indices assigned at a cost per index bit of that many times its nearest
+    #: indices' mean weighted error per group, measured like every option, so the multiplier
+    #: that picks the codebooks also picks how hard each trades error for bits; with any, every
+    #: SH band's codebook holds an exact zero entry. Empty: nearest entries only (DECISIONS D-27).
+    #: (0.3, 1.0, 3.0) is the measured setting; off by default until the size target's trial
+    #: writes predict ECVQ's skewed index columns (their Huffman code is longer than the
+    #: entropy the options are priced at).
+    ecvq_strengths: tuple[float, ...] = ()
 
     #: Factor on the linearized renderer's predictions (codebook options, the sketch's error),
     #: which put them on the scale of rendered MSE, the scale position options are measured

@@ -27,6 +27,7 @@ from spcodec.writer import PatchLayer
 from .config import DEFAULT_POSITION_BITS, RETRAINED_POSITION_BITS, PatchConfig, codebook_entries
 from .contexts import choose_index_contexts
 from .draco import encode_ordered, grid_for
+from .ecvq import ecvq_refine, with_zero_entry
 from .kmeans import exhaustive_codebook, nearest, sampled_codebook
 from .morton import morton_codes
 from .refine import default_jobs
@@ -225,6 +226,28 @@ def assign_attribute(attribute: PatchAttribute, values: np.ndarray,
     return assign(values, entries)
 
 
+def final_codebook(attr: PatchAttribute, values: np.ndarray, entries: np.ndarray,
+                   weights: np.ndarray | None, bit_cost: float = 0.0, iterations: int = 3,
+                   zero_entry: bool = False) -> tuple[Codebook, np.ndarray]:
+    """The codebook of trained ``entries`` and the indices of ``values`` (an attribute's coded
+    values): with an exact zero entry for an SH band when ``zero_entry``; nearest entries
+    (:func:`assign_attribute`) when ``bit_cost`` is 0, else ECVQ's (:mod:`.ecvq`), which also
+    moves the entries. Scalar rotation codebooks keep their own search: ECVQ's error is not the
+    angle a decoder sees after normalizing."""
+    keep = None
+    if zero_entry and attr >= PatchAttribute.SH_BAND_1 and len(values):
+        entries, keep = with_zero_entry(entries)
+    scalar_rotation = attr is PatchAttribute.ROTATION and entries.shape[1] == 1
+    if bit_cost <= 0 or len(values) == 0 or scalar_rotation:
+        return Codebook(attr, entries), assign_attribute(attr, values, entries)
+    n, width = values.shape
+    dim = entries.shape[1]
+    groups = values.reshape(n * (width // dim), dim)
+    w = None if weights is None else np.repeat(np.asarray(weights, np.float64), width // dim)
+    entries, idx = ecvq_refine(groups, entries, w, bit_cost, iterations, keep)
+    return Codebook(attr, entries), idx.reshape(n, width // dim)
+
+
 @dataclass
 class Quantized:
     """A patch cloud's attributes as codebooks and indices, before it is split into layers.
@@ -345,10 +368,23 @@ class PatchEncoder:
                 if cfg.entry_counts and attr.name in cfg.entry_counts:
                     size = max(1, min(size, cfg.entry_counts[attr.name]))
                 entries = train_codebook(values[attr], dim, size, weights, cfg, seeds[attr])
-            return Codebook(attr, entries), assign_attribute(attr, values[attr], entries)
+            return self._entries_and_indices(attr, values[attr], entries, weights)
 
         done = dict(zip(values, self._map(train, list(values))))
         return Quantized([done[a][0] for a in values], {a: done[a][1] for a in values})
+
+    def bit_cost(self, attr: PatchAttribute) -> float:
+        """ECVQ's weighted error per index bit for ``attr`` (0: nearest entries)."""
+        cfg = self.config
+        if not cfg.ecvq or not cfg.ecvq_bit_costs:
+            return 0.0
+        return float(cfg.ecvq_bit_costs.get(attr.name, 0.0))
+
+    def _entries_and_indices(self, attr: PatchAttribute, values: np.ndarray, entries: np.ndarray,
+                             weights: np.ndarray | None) -> tuple[Codebook, np.ndarray]:
+        cfg = self.config
+        return final_codebook(attr, values, entries, weights, self.bit_cost(attr),
+                              cfg.ecvq_iterations, cfg.sh_zero_entry)
 
     def assign(self, cloud: GaussianCloud, codebooks: list[Codebook]
                ) -> dict[PatchAttribute, np.ndarray]:

@@ -198,3 +198,41 @@ def test_the_summary_names_the_chosen_codebooks_and_grid(capsys):
     out = capsys.readouterr().out
     assert "scale 1x64; positions at 13 bits" in out
     assert "point 3 of 9 of the precision curve reaches 40.21 dB" in out
+
+
+
+def test_ecvq_variants_compete_as_options_and_reach_the_patch_config(scene, cameras, search):
+    """With ECVQ strengths, every codebook option but scalar rotations gains variants of fewer
+    index bits for more predicted distortion (the same entries); a budget then chooses among
+    all of them, and the ones chosen set the patch config's costs per bit and the SH bands'
+    zero entry."""
+    settings = RenderSettings(background=(0.0, 0.0, 0.0))
+    framings = {"orbit": render_sensitivity(scene, cameras, settings)}
+    config = dataclasses.replace(SMALL, ecvq_strengths=(0.5, 4.0))
+    ecvq = PrecisionSearch.measure(scene, framings, None, FAST, seed=0, config=config)
+    for name, options in ecvq.options.items():
+        for dim in {o.entry_dim for o in options}:
+            for entries in {o.entries for o in options if o.entry_dim == dim}:
+                same = sorted((o for o in options if (o.entry_dim, o.entries) == (dim, entries)),
+                              key=lambda o: o.bit_cost)
+                plain = next(o for o in search.options[name]
+                             if (o.entry_dim, o.entries) == (dim, entries))
+                assert same[0].bit_cost == 0
+                if name.startswith("SH_BAND"):  # ECVQ on: every SH band codebook has its zero
+                    assert all(o.zero_entry for o in same) and not plain.zero_entry
+                else:
+                    assert same[0].index_bits == plain.index_bits
+                if name == "ROTATION" and dim == 1:
+                    assert len(same) == 1
+                    continue
+                assert len(same) == 3, (name, dim, entries)
+                assert same[-1].index_bits < same[0].index_bits, (name, dim, entries)
+                assert same[-1].distortion > same[0].distortion * 0.99, (name, dim, entries)
+    curve = ecvq.curve()
+    assert any(o.bit_cost > 0 for a in curve for o in a.options.values())
+    chosen = next(a for a in curve if any(o.bit_cost > 0 for o in a.options.values()))
+    patch = chosen.patch_config(FAST)
+    assert patch.ecvq and patch.ecvq_bit_costs == {
+        n: o.bit_cost for n, o in chosen.options.items() if o.bit_cost > 0}
+    assert patch.sh_zero_entry == (ecvq.count > 0 and scene.sh_degree > 0)
+    assert search.curve()[0].patch_config(FAST).ecvq_bit_costs is None  # nearest: unchanged

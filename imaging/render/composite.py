@@ -179,6 +179,35 @@ def _fragments_fast(g: torch.Tensor, gid: torch.Tensor, px: torch.Tensor, py: to
     return _Fragments(gid, g, alpha_raw, alpha, one_minus, t_excl, t_incl, weight, t_next)
 
 
+def _fragments_forward(g: torch.Tensor, gid: torch.Tensor, px: torch.Tensor, py: torch.Tensor,
+                       t_prev: torch.Tensor, config: BlendConfig) -> _Fragments:
+    """The step of :func:`_fragments_fast` for a forward pass alone: the same arithmetic, but
+    the clamp and the weight reuse the alpha buffer, so only ``weight``, ``t_next``, ``g`` and
+    ``gid`` of the result are meaningful (the other fields alias them)."""
+    dtype = px.dtype
+    n, pixels = px.shape
+    row = lambda k: g[k][:, None, :]  # noqa: E731  (n, 1, C) broadcast over pixels
+    dx = px[:, :, None] - row(_MX)
+    dy = py[:, :, None] - row(_MY)
+    power = dx * row(_QA)
+    power.addcmul_(dy, row(_QB)).mul_(dx)
+    power.addcmul_(dy.square_(), row(_QC))
+    alpha = power.clamp_min_(_MIN_POWER).exp_().mul_(row(_OP)).clamp_max_(config.max_alpha)
+    alpha = F.threshold_(alpha, _below(ALPHA_THRESHOLD, dtype), 0.0)
+    factors = px.new_empty(n, pixels, alpha.shape[2] + 1)
+    factors[:, :, 0] = t_prev
+    one_minus = torch.sub(px.new_ones(()), alpha, out=factors[:, :, 1:])
+    products = torch.cumprod(factors, dim=2)
+    t_excl, t_incl = products[:, :, :-1], products[:, :, 1:]
+    stop = _below(TRANSMITTANCE_THRESHOLD, dtype)
+    t_next = F.threshold(t_incl[:, :, -1], stop, 0.0)
+    if bool((t_next == 0).any()):  # as in _fragments_fast
+        weight = F.threshold(t_incl, stop, 0.0).mul_(alpha).div_(one_minus)
+    else:
+        weight = alpha.mul_(t_excl)
+    return _Fragments(gid, g, weight, weight, one_minus, t_excl, t_incl, weight, t_next)
+
+
 def _fragments_plain(g: torch.Tensor, gid: torch.Tensor, px: torch.Tensor, py: torch.Tensor,
                      t_prev: torch.Tensor, config: BlendConfig) -> _Fragments:
     """The same step with out-of-place ops only, so autograd can differentiate it."""
@@ -257,7 +286,7 @@ def _blend_forward(table: torch.Tensor, bins: TileBins, config: BlendConfig) -> 
     acc = table.new_zeros(bins.num_tiles, pixels, 4)
     for batch in _batches(bins, pixels, config, table.device, table.dtype):
         batch_acc = table.new_zeros(len(batch.tiles), pixels, 4)
-        for rows, frag in _steps(table, bins, batch, config, _fragments_fast):
+        for rows, frag in _steps(table, bins, batch, config, _fragments_forward):
             contribution = torch.bmm(frag.weight, _rgb1(frag.g))
             batch_acc.index_copy_(0, rows, contribution.add_(batch_acc.index_select(0, rows)))
         acc[batch.tiles] = batch_acc

@@ -27,6 +27,7 @@ import numpy as np
 from spcodec.cloud import GaussianCloud
 from spcodec.decoder import decode_layers
 from spcodec.errors import UsageError
+from spcodec.imaging.cache import default_cache_dir
 from spcodec.imaging.sensitivity import Sensitivity
 
 from .allocation import (
@@ -39,9 +40,13 @@ from .allocation import (
 from .config import EncoderConfig, PatchConfig
 from .patch import PatchEncoder, PatchEncoding, Quantized
 from .prune import kept_count, prune_by_importance
-from .qualitycontrol import CloseupJudge, check_reachable, fewest_reaching
+from .qualitycontrol import QualityPlan, TargetJudge, check_reachable, fewest_reaching
 from .ratecontrol import FIT_SLACK, SNAP_MARGIN, TOLERANCE, TRAIN_MARGIN, fit_count, plan_count
 from .stages import SceneWriter, SketchOutcome
+
+LANDING_TRIES = 3
+"""Searches a quality target makes at most, each ending with one judgement at the evaluation's
+resolution (:meth:`QualityTarget.landed`)."""
 
 ALLOCATION_TRIALS = 4
 """Real writes the precision search may make to land its allocation under the target."""
@@ -319,26 +324,51 @@ class QualityTarget(Sizing):
     def __init__(self, config: EncoderConfig, original: GaussianCloud, device: str) -> None:
         super().__init__(config, original, device)
         self.target = float(config.target_psnr)
-        self.judge = CloseupJudge(original, up=config.up, antialiased=config.antialiased,
-                                  device=device)
+        self.judge = TargetJudge(original, up=config.up, antialiased=config.antialiased,
+                                 device=device, cache=default_cache_dir())
         self.allocated: PatchConfig | None = None
+        self.allocated_psnr = math.nan
+        """The close-up PSNR of the allocated point's file, every patch Gaussian kept."""
 
     def plan(self, patch: GaussianCloud, weights: np.ndarray, writer: SceneWriter,
              encoder: PatchEncoder, rows: np.ndarray | None = None) -> int:
+        known: dict[int, float] = {}
         if self.config.retrain is None and self.config.allocation is not None and len(patch):
             encoder = self.allocate(patch, weights, writer, encoder, rows)
             if self.config.keep_all:
                 return len(patch)
-        reach = fewest_reaching(self.target, len(patch),
-                                _judged_trial(writer, encoder, patch, weights, self.judge))
+            # the chosen point was judged with every patch Gaussian: the same file
+            known[len(patch)] = self.allocated_psnr
+        files = _pruned_files(writer, encoder, patch, weights)
+        reach = self.landed(len(patch), files, known)
         check_reachable(self.target, reach, self.config.retrain is not None)
         short = [c for c, p in reach.judged.items() if p < self.target]
         self.record.setdefault("quality_target", {}).update({
             "target_psnr": self.target, "patch_gaussians": len(patch),
             "count_without_retraining": reach.count,
             "psnr_without_retraining": round(reach.psnr, 3),
-            "largest_count_short": max(short, default=0), "judgements": len(reach.judged)})
+            "largest_count_short": max(short, default=0), "judgements": len(reach.judged),
+            "judged_at_full_resolution": self.judge.full_judgements})
         return reach.count
+
+    def landed(self, upper: int, file_of: Callable[[int], GaussianCloud],
+               known: dict[int, float]) -> QualityPlan:
+        """:func:`fewest_reaching` with the judge's predictions, its answer then judged at the
+        evaluation's resolution: when that falls short of the target, the judge's offset is
+        taken from that file and the search goes on (at most :data:`LANDING_TRIES` times), so
+        the count returned is judged on the evaluation's own scale."""
+        judged = dict(known)
+        for _ in range(LANDING_TRIES):
+            reach = fewest_reaching(self.target, upper, lambda c: self.judge(file_of(c)), judged)
+            if not reach.reached:
+                return reach
+            full = self.judge.verify(file_of(reach.count))
+            reach.judged[reach.count] = reach.psnr = full
+            if full >= self.target:
+                return reach
+            # below the target: counts judged short stay short, the rest are judged again
+            judged = {c: p for c, p in reach.judged.items() if c <= reach.count}
+        return reach
 
     def allocate(self, patch: GaussianCloud, weights: np.ndarray, writer: SceneWriter,
                  encoder: PatchEncoder, rows: np.ndarray | None) -> PatchEncoder:
@@ -371,6 +401,7 @@ class QualityTarget(Sizing):
             else:
                 lo = mid
         self.allocated = curve[hi].patch_config(encoder.config)
+        self.allocated_psnr = judged[hi]
         self.record["quality_target"] = {
             "target_psnr": self.target,
             "precision": {"options": curve[hi].describe(), "curve_points": len(curve),
@@ -387,8 +418,8 @@ class QualityTarget(Sizing):
     def fit(self, writer: SceneWriter, encoder: PatchEncoder, cloud: GaussianCloud,
             quantized: Quantized, importance: np.ndarray) -> np.ndarray:
         """The fewest trained Gaussians that still reach the target."""
-        found = fewest_reaching(self.target, len(cloud), _judged_quantized(
-            writer, encoder, cloud, quantized, importance, self.judge))
+        found = self.landed(len(cloud), _quantized_files(writer, encoder, cloud, quantized,
+                                                         importance), {})
         self.record["quality_target"].update(count_retrained=found.count,
                                              psnr_retrained=round(found.psnr, 3),
                                              reached=found.reached)
@@ -421,24 +452,24 @@ def pruned_file(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud
     return writer.write_file(encoder.encode(patch.subset(top), importance=weights[top]))
 
 
-def _judged_trial(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
-                  weights: np.ndarray, judge: CloseupJudge) -> Callable[[int], float]:
-    """count -> close-up PSNR of the file with the ``count`` most important patch Gaussians,
-    coded without retraining (quality control's first search)."""
-    return lambda count: judge(decode_layers(
-        pruned_file(writer, encoder, patch, weights, count).data).cloud)
+def _pruned_files(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
+                  weights: np.ndarray) -> Callable[[int], GaussianCloud]:
+    """count -> the decoded file with the ``count`` most important patch Gaussians, coded
+    without retraining (quality control's first search)."""
+    return lambda count: decode_layers(
+        pruned_file(writer, encoder, patch, weights, count).data).cloud
 
 
-def _judged_quantized(writer: SceneWriter, encoder: PatchEncoder, trained: GaussianCloud,
-                      quantized: Quantized, importance: np.ndarray, judge: CloseupJudge
-                      ) -> Callable[[int], float]:
-    """count -> close-up PSNR of the file with the ``count`` most important quantized Gaussians."""
-    def judged(count: int) -> float:
+def _quantized_files(writer: SceneWriter, encoder: PatchEncoder, trained: GaussianCloud,
+                     quantized: Quantized, importance: np.ndarray
+                     ) -> Callable[[int], GaussianCloud]:
+    """count -> the decoded file with the ``count`` most important quantized Gaussians."""
+    def decoded(count: int) -> GaussianCloud:
         top = prune_by_importance(importance, count)
         data = writer.write(encoder.layer(trained.subset(top), quantized.subset(top),
                                           importance[top]))
-        return judge(decode_layers(data).cloud)
-    return judged
+        return decode_layers(data).cloud
+    return decoded
 
 
 def _sized(writer: SceneWriter, encoder: PatchEncoder, trained: GaussianCloud,

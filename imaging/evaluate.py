@@ -386,6 +386,41 @@ def evaluate_against_reference(model: GaussianCloud, reference: GaussianCloud,
     return report
 
 
+def reference_framing(reference: GaussianCloud, config: EvalConfig,
+                      distance: float) -> CachedRenders:
+    """The reference's renders (and cameras) at one framing of :func:`evaluate_against_reference`
+    with ``config``: the sampled one (``distance`` 1) or the close-up at ``distance`` (its side
+    ``config.closeup_resolution``). From ``config.cache`` when it holds them, else rendered and
+    stored there under the key the evaluation uses, so an encode that judges close-ups and a
+    later ``spcodec eval`` share them, bit for bit."""
+    reference.check_finite()
+    upload, draw, _, identity = _renderer(config, config.background)
+    framings = [_Framing(1.0)] + ([_Framing(float(distance))] if distance != 1.0 else [])
+    cache = RenderCache(config.cache) if config.cache is not None else None
+    if cache is not None:
+        _look_up(framings, cache, config, reference, identity())
+    wanted = framings[-1]
+    if wanted.renders is not None:
+        return wanted.renders
+    notes, centre = _place_cameras(framings, config, reference)
+    params = upload(reference)
+    renders = CachedRenders(wanted.cameras, np.stack([draw(params, c)[0] for c in wanted.cameras]))
+    if distance == 1.0:  # as the evaluation stores its sampled framing
+        renders.notes, renders.extra = notes, {"centre": centre}
+    if cache is not None and wanted.key is not None:
+        cache.put(wanted.key, renders)  # a cache that cannot be written only costs time
+    return renders
+
+
+def render_views(model: GaussianCloud, cameras: list[Camera], config: EvalConfig
+                 ) -> list[np.ndarray]:
+    """``model`` rendered at ``cameras`` exactly as the evaluation renders it with ``config``
+    (device, low-pass, antialiasing, background), uploaded once."""
+    upload, draw, _, _ = _renderer(config, config.background)
+    params = upload(model)
+    return [draw(params, camera)[0] for camera in cameras]
+
+
 def _look_up(framings: list[_Framing], cache: RenderCache, config: EvalConfig,
              reference: GaussianCloud, renderer: dict) -> None:
     """Set each framing's cache key, and its renders where the cache holds them."""

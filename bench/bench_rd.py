@@ -38,18 +38,21 @@ Every encode runs as its own ``spcodec encode`` process under ``/usr/bin/time`` 
 per run) with ``--stats`` (time per stage). With ``--encoded DIR`` a point whose file
 ``DIR/SCENE-METHOD-POINT.spc`` (and ``.stats.json``) exists is judged, not encoded: encodes made
 elsewhere with the same options (on a lent GPU, say) join the same rows. Rows are appended to a
-JSON file as they finish, so an interrupted sweep continues where it stopped; ``--plot`` draws
-one PSNR-vs-size figure per scene (log size axis) into ``docs/results/``. matplotlib is needed
-for the plots only (install by hand).
+JSON file as they finish (each with the commit, the time and the machine's load), so an
+interrupted sweep continues where it stopped; ``--plot DIR`` draws one PSNR-vs-size figure per
+scene (log size axis) into DIR, SVG by bench/svg_chart.py (``--png``: matplotlib, installed by
+hand), for a look at a sweep under way: the committed figures of ``docs/results/rd_sweep.json``
+are bench/results_page.py's. ``--no-eval`` leaves out our eval where a loaded machine has no time
+for it (the viewer's framings are what the targets name).
 
     python bench/bench_rd.py --json rd.json [--scenes fourth_st donut guitar kacytran lego]
         [--methods sp pr noretrain spz sog spz4 sp-target pr-target spu-target sps-target]
         [--factors 2 4 8 16]
         [--spz-fractions 0.0625 0.125 0.5] [--pr-fractions 0.0625 0.125 0.25 0.5]
         [--nr-fractions 0.125 0.25 0.5 0.6 0.75 0.9]
-        [--iterations 3000] [--encoded DIR]
+        [--presets transparent] [--iterations 3000] [--encoded DIR] [--no-eval]
         [--lego-model /path/lego.ply --lego-downscale 4] [--no-viewer]
-    python bench/bench_rd.py --json rd.json --plot docs/results
+    python bench/bench_rd.py --json rd.json --plot DIR [--png]
 """
 
 from __future__ import annotations
@@ -93,6 +96,7 @@ LABELS = {"sp": "S&P++ (retrained)", "pr": "Prune&Retrain", "noretrain": "no-ret
           "sp-target-uncapped": "S&P++ --target-size, sketch not capped (before 13.6)",
           "spz4-uncapped": "S&P++ at SPZ/4, sketch not capped (before 13.6)",
           "spz4-p12": "S&P++ at SPZ/4, 12-bit positions, 1000 steps (13.10)"}
+PRESETS = ("lowrate", "balanced", "highrate", "transparent")
 SINGLE_POINTS = ("spz", "sog", "spz4", "spz4-uncapped", "spz4-p12")
 """Methods with one point per scene, drawn larger than the curves."""
 
@@ -115,16 +119,18 @@ def scene_setup(name: str, args) -> dict:
 
 
 def judge(decoded: spcodec.GaussianCloud, original: spcodec.GaussianCloud, setup: dict,
-          decoded_ply: Path | None = None, viewer: Path | None = None) -> dict:
+          decoded_ply: Path | None = None, viewer: Path | None = None, ours: bool = True) -> dict:
     """PSNR/SSIM as ``spcodec eval`` measures them for this scene (and at half the distance),
-    and, with ``viewer`` (a cache folder) and the decoded PLY, the viewer's two framings."""
+    and, with ``viewer`` (a cache folder) and the decoded PLY, the viewer's two framings.
+    ``ours=False`` skips our eval against renders of the input (a dataset's test images are
+    always judged): on a loaded machine it halves a point's time, and the targets are the viewer's."""
     decoded = _finite(decoded)
     out = {}
     if setup["dataset"] is not None:
         report = evaluate_against_dataset(decoded, setup["dataset"], EvalConfig(
             downscale=setup["downscale"], device="cpu"))
         out.update(psnr=report.psnr, ssim=report.ssim)
-    else:
+    elif ours:
         report = evaluate_against_reference(decoded, original, EvalConfig(
             device="cpu", up=setup["up"], antialiased=setup["antialiased"], closeups=(0.5,)))
         close = report.framing(0.5)
@@ -200,9 +206,17 @@ def encoded_file(folder: Path | None, scene: str, method: str, point
     return out, json.loads(out.with_suffix(".stats.json").read_text()), None
 
 
+def _commit() -> str | None:
+    """The checkout's commit, so a row says which encoder it measured (None outside git)."""
+    found = subprocess.run(["git", "-C", str(Path(__file__).resolve().parent), "rev-parse", "HEAD"],
+                           capture_output=True, text=True)
+    return (found.stdout.strip() or None) if found.returncode == 0 else None
+
+
 def sweep(args) -> None:
     rows = json.loads(args.json.read_text()) if args.json.exists() else []
     done = {(r["scene"], r["method"], str(r.get("point", r["param"]))) for r in rows}
+    commit = _commit()
     viewer = None
     if not args.no_viewer:
         reason = viewer_yardstick.missing()
@@ -212,11 +226,14 @@ def sweep(args) -> None:
             viewer = args.viewer_cache
 
     def record(row: dict) -> None:
+        row.update(commit=commit, finished=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                   load=round(os.getloadavg()[0], 2))
         rows.append(row)
         args.json.write_text(json.dumps(rows, indent=2))
         seen = "".join(f"  {k} {row[k]:6.2f}" for k in ("orbit", "close") if k in row)
+        ours = f"  eval {row['psnr']:6.2f} dB" if "psnr" in row else ""
         print(f"{row['scene']:>10} {row['method']:>9} {str(row['param']):>8}: "
-              f"{row['bytes']:>10,} B  eval {row['psnr']:6.2f} dB{seen}  "
+              f"{row['bytes']:>10,} B{ours}{seen}  "
               f"{row.get('seconds') or 0:7.1f} s", flush=True)
 
     for name in args.scenes:
@@ -227,7 +244,7 @@ def sweep(args) -> None:
             record(dict(scene=name, method="original", param="-", point="-", bytes=ply_bytes,
                         **judge(original, original, setup), gaussians=len(original)))
         points = {"sp": args.factors, "pr": args.factors,
-                  "noretrain": ["lowrate", "balanced", "highrate", "transparent"],
+                  "noretrain": args.presets,
                   "spz": ["-"], "sog": ["-"], "spz4": ["-"], "sp-target": args.spz_fractions,
                   "pr-target": args.pr_fractions, "spu-target": args.pr_fractions,
                   "sps-target": args.pr_fractions, "nr-target": args.nr_fractions}
@@ -245,7 +262,8 @@ def sweep(args) -> None:
                             tool, size, back = sog_round_trip(setup["ply"], work)
                         record(dict(scene=name, method=method, param=tool, point=param,
                                     bytes=size, ply=ply_bytes, **judge(
-                                        spcodec.read_ply(back), original, setup, back, viewer)))
+                                        spcodec.read_ply(back), original, setup, back, viewer,
+                                        not args.no_eval)))
                         done.add((name, method, str(param)))
                         continue
                     target = param
@@ -271,7 +289,8 @@ def sweep(args) -> None:
                     spcodec.write_ply(decoded_ply, decoded)
                     record(dict(scene=name, method=method, param=target, point=param,
                                 bytes=out.stat().st_size,
-                                **judge(decoded, original, setup, decoded_ply, viewer),
+                                **judge(decoded, original, setup, decoded_ply, viewer,
+                                        not args.no_eval),
                                 seconds=seconds, stages=stats["seconds"], peak_mib=peak,
                                 ply=ply_bytes, gaussians=len(decoded),
                                 encoded=str(out) if made else "here",
@@ -290,9 +309,48 @@ PANELS = (("orbit", "PlayCanvas, orbit framing"), ("close", "PlayCanvas, half th
           ("psnr", "our eval (400x400, whole scene)"))
 
 
+SVG_STYLES = {  # method: (colour, marker, drawn as a line); spz4 joins the sp-target line
+    "sp-target": ("#d62728", "circle", True), "sp": ("#e377c2", "circle", True),
+    "pr-target": ("#1f77b4", "circle", True), "pr": ("#17becf", "circle", True),
+    "spu-target": ("#bcbd22", "circle", True), "sps-target": ("#8c564b", "circle", True),
+    "nr-target": ("#ff7f0e", "diamond", True), "noretrain": ("#2ca02c", "circle", True),
+    "spz": ("#000000", "square", False), "sog": ("#9467bd", "diamond", False),
+    "original": ("#7f7f7f", "square", False)}
+
+
+def svg_figure(rows: list[dict], name: str) -> str | None:
+    """One scene's figure as SVG text (bench/svg_chart.py: no plotting dependency, the same text
+    on every machine): a panel per framing, one size axis, None where no row has a framing."""
+    from svg_chart import Panel, Series, chart
+    panels = []
+    for key, title in PANELS:
+        series = []
+        for method, (colour, marker, line) in SVG_STYLES.items():
+            drawn = (method, "spz4") if method == "sp-target" else (method,)
+            pts = tuple((float(r["bytes"]), float(r[key])) for r in rows
+                        if r["scene"] == name and r["method"] in drawn and r.get(key) is not None)
+            if pts:
+                series.append(Series(LABELS[method], colour, pts, line, marker))
+        if series:
+            test_images = name == "lego" and key == "psnr"
+            panels.append(Panel("test images" if test_images else title, tuple(series)))
+    return chart(f"{name}: PSNR against file size", panels) if panels else None
+
+
 def plot(args) -> None:
     """One figure per scene: PSNR against size (log) at the viewer's two framings and in our
-    eval, a panel each; lego's third panel is against its test images."""
+    eval, a panel each; lego's third panel is against its test images. SVG unless ``--png``
+    (matplotlib, installed by hand)."""
+    if not args.png:
+        rows = json.loads(args.json.read_text())
+        args.plot.mkdir(parents=True, exist_ok=True)
+        for name in dict.fromkeys(r["scene"] for r in rows):
+            text = svg_figure(rows, name)
+            if text is not None:
+                path = args.plot / f"rd_{name}.svg"
+                path.write_text(text, encoding="utf-8")
+                print(f"wrote {path}")
+        return
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -356,12 +414,17 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=3000)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--no-viewer", action="store_true", help="skip the PlayCanvas columns")
+    ap.add_argument("--no-eval", action="store_true", help="skip our eval against renders of the "
+                    "input (psnr, psnr_close columns); a dataset's test images are still judged")
+    ap.add_argument("--presets", nargs="+", default=list(PRESETS), choices=PRESETS,
+                    help="the noretrain points (default: all four)")
     ap.add_argument("--viewer-cache", type=Path,
                     default=Path(tempfile.gettempdir()) / "spcodec-yardstick",
                     help="where the inputs' viewer renders are kept between runs")
     ap.add_argument("--lego-model", help="the model bench/train_vanilla.py wrote")
     ap.add_argument("--lego-downscale", type=int, default=4)
     ap.add_argument("--plot", type=Path, help="draw the figures into this folder and exit")
+    ap.add_argument("--png", action="store_true", help="with --plot: PNG by matplotlib, not SVG")
     args = ap.parse_args()
     if args.plot:
         plot(args)

@@ -28,6 +28,9 @@ DOCS = REPO / "docs"
 RD_ROWS = DOCS / "results" / "rd_deliverable6.json"
 TARGET_ROWS = DOCS / "results" / "rd_noretrain_targets.json"
 """No-retrain ``--target-size`` files of the precision search (LOG 17.5), judged like the sweep."""
+SWEEP_ROWS = DOCS / "results" / "rd_sweep.json"
+"""The no-retrain curve of one frozen commit (issue 37 item 4): its own table and figures, apart
+from the rows above, which were measured at earlier commits (and lego on another model)."""
 GPU_RUN = DOCS / "results" / "gpu_protocol_lego_10k.json"
 SVG_DIR = DOCS / "results" / "svg"
 PAGE = DOCS / "RESULTS.md"
@@ -74,6 +77,8 @@ COMMANDS = {
              "python bench/bench_decode.py --repeat 10",
              "python bench/bench_web_decode.py --repeat 10 --rounds 5   # npm ci in web/, bench/web/"),
     "page": "python bench/results_page.py",
+    "curve": (f"{SWEEP} --no-eval --methods spz nr-target noretrain --presets transparent "
+              "--nr-fractions 0.25 0.4 0.55 0.65 0.75   # lego: --lego-model M"),
 }
 
 NO_MATCH = {
@@ -241,7 +246,8 @@ def intro(page: Page) -> None:
         "[How good at a quarter of SPZ's bytes?](#how-good-at-a-quarter-of-spzs-bytes) · "
         "[How fast to encode and decode?](#how-fast-to-encode-and-decode) · "
         "[On a GPU by the paper's protocol?](#on-a-gpu-by-the-papers-protocol) · "
-        "[What is still missed?](#what-is-still-missed) · [Figures](#figures)",
+        "[What is still missed?](#what-is-still-missed) · [Figures](#figures) · "
+        "[The no-retrain curve at one commit](#the-no-retrain-curve-at-one-commit)",
         "",
     )
 
@@ -441,6 +447,49 @@ def figures(page: Page, rows: list[dict]) -> dict[Path, str]:
     return out
 
 
+def sweep_point(row: dict) -> str:
+    if row["method"] == "noretrain":
+        return f"`--preset {row['point']}`"
+    return f"`--target-size` {float(row['point']):g} x SPZ"
+
+
+def no_retrain_curve(page: Page, rows: list[dict]) -> dict[Path, str]:
+    """The sweep of one commit: every no-retrain file with its encode time, and a figure per scene
+    beside the others in ``docs/results/``."""
+    commits = sorted({r["commit"][:7] for r in rows if r.get("commit")})
+    page.add(
+        "## The no-retrain curve at one commit",
+        "",
+        f"Files made without retraining at commit {', '.join(commits)}: `--target-size` for a share "
+        "of SPZ's bytes and the transparent preset, judged as above (PlayCanvas orbit / close-up dB; "
+        "lego against its test images too, here a shorter-trained model than the rows above, its "
+        "own dB in the `model` row). The five shared scenes' SPZ and SOG files are those above. Encode wall "
+        "seconds on the shared 2-core machine, its 1-minute load average when the row was written "
+        "in brackets: a loaded machine, so upper bounds.",
+        "",
+        "| scene | file | bytes | x SPZ | orbit / close | test images | encode s (load) |",
+        "|---|---|---:|---:|---|---:|---:|",
+    )
+    out = {}
+    for scene in SCENES:
+        spz = one(rows, scene, "spz")
+        mine = sorted(rows_of(rows, scene, *NO_RETRAIN, "spz", "sog", "original"),
+                      key=lambda r: r["bytes"])
+        if spz is None or not rows_of(rows, scene, *NO_RETRAIN):
+            continue
+        for row in mine:
+            name = {"spz": "SPZ", "sog": "SOG", "original": "model"}.get(row["method"]) or sweep_point(row)
+            test = f"{row['psnr']:.2f}" if scene == "lego" and row.get("psnr") is not None else "-"
+            took = f"{row['seconds']:.0f} ({row['load']:.1f})" if row.get("seconds") else "-"
+            page.add(f"| {scene} | {name} | {row['bytes']:,} | {row['bytes'] / spz['bytes']:.2f} | "
+                     f"{framings(row)} | {test} | {took} |")
+        path = DOCS / "results" / f"rd_{scene}.svg"
+        out[path] = scene_figure(rows, scene)
+    page.command("curve")
+    page.add(*(f"![{p.stem}](results/{p.name})" for p in out), "")
+    return out
+
+
 def build() -> dict[Path, str]:
     """Every file the page consists of, path to text."""
     rows = load_rows()
@@ -452,6 +501,8 @@ def build() -> dict[Path, str]:
     on_gpu(page, json.loads(GPU_RUN.read_text()))
     still_missed(page)
     files = figures(page, rows)
+    if SWEEP_ROWS.exists():
+        files.update(no_retrain_curve(page, json.loads(SWEEP_ROWS.read_text())))
     return {PAGE: page.text(), **files}
 
 

@@ -165,3 +165,20 @@ def test_chart_is_svg_with_every_mark_inside_its_panel(first, second):
         for square in group.findall(f"{ns}rect")[1:]:
             assert -3.6 <= float(square.get("y")) <= plot_h + 0.1
     assert svg_chart.chart("t", panels) == text
+
+
+def test_no_retrain_curve_lists_each_file_by_size_and_draws_each_scene():
+    def row(method, nbytes, point="-", **extra):
+        return {"scene": "guitar", "method": method, "point": point, "bytes": nbytes, "orbit": 40.0,
+                "close": 35.0, "commit": "0123456789", **extra}
+    rows = [row("spz", 1000), row("nr-target", 750, 0.75, seconds=12.0, load=3.5),
+            row("nr-target", 250, 0.25, seconds=9.0, load=2.0), row("noretrain", 900, "transparent"),
+            row("pr-target", 500, 0.5), {**row("spz", 10), "scene": "kacytran"}]
+    page = results_page.Page({})
+    files = results_page.no_retrain_curve(page, rows)
+    table = [line for line in page.lines if line.startswith("| guitar")]
+    assert [line.split(" | ")[2] for line in table] == ["250", "750", "900", "1,000"]
+    assert "| 0.75 |" in table[1] and "| 12 (3.5) |" in table[1]
+    assert "0123456" in page.text()
+    assert set(files) == {results_page.DOCS / "results" / "rd_guitar.svg"}
+    ET.fromstring(files[results_page.DOCS / "results" / "rd_guitar.svg"])

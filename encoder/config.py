@@ -513,7 +513,7 @@ class RetrainConfig:
     importance_views: int = 16
     #: Quantization-aware retraining: from this share of ``iterations`` on, the patch trains
     #: through its codebooks (each attribute snapped to its nearest entry and positions to the
-    #: stored grid, gradients passed straight through; encoder/quantaware.py). Under rate control
+    #: stored grid, gradients passed straight through; encoder/retraining/quantaware.py). Under rate control
     #: the count is fitted to the target at that step, while steps remain to adapt. 1.0: train
     #: unquantized and quantize afterwards.
     snap_start: float = 0.3
@@ -524,7 +524,7 @@ class RetrainConfig:
     #: pays where the codebooks cost much (fourth_st, SH 3) and loses where they cost little
     #: (guitar, SH 0): DECISIONS D-18.
     snap_min_loss: float = 2.5
-    #: Nested retraining (encoder/nested.py): the patch layers are fixed before training and
+    #: Nested retraining (encoder/retraining/nested.py): the patch layers are fixed before training and
     #: every step trains one layer prefix (sketch and layers 1..k), the whole file at
     #: ``nested_full_share`` of the steps, so that every prefix is a trained scene for a
     #: progressive viewer (plain retraining optimizes the full file only). Snapping is off.

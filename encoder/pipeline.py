@@ -21,6 +21,7 @@ from spcodec.cloud import GaussianCloud
 from spcodec.container import Codec
 from spcodec.decoder import decode_layers
 from spcodec.errors import FormatError, UsageError
+from spcodec.imaging.cache import default_cache_dir
 from spcodec.imaging.evaluate import EvalConfig, evaluate_against_dataset, evaluate_against_reference
 from spcodec.writer import EncodedScene, WriteOptions, WrittenFile
 
@@ -274,8 +275,11 @@ def judge(data: bytes, original: GaussianCloud, config: EncoderConfig,
             progress=progress))
         against = f"the test images of {dataset} (low-pass {low_pass:g} px^2)"
     else:
+        # eval's render cache: the quality target's judge stored the original's close-ups there,
+        # and a later `spcodec eval --reference` reuses what this judgement renders
         report = evaluate_against_reference(decoded, original, EvalConfig(
-            device=device, up=config.up, antialiased=config.antialiased, progress=progress))
+            device=device, up=config.up, antialiased=config.antialiased, progress=progress,
+            cache=default_cache_dir()))
         against = "renders of the original at held-out views"
     doc = report.to_json()
     closeups = [Closeup(c["distance"], c["psnr"], c["ssim"], c["width"], c["height"])

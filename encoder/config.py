@@ -424,8 +424,10 @@ class AllocationConfig:
 
     #: Patch Gaussians the options are measured on (a uniform sample, seeded).
     sample: int = 16_384
-    #: Entry counts tried for every entry dimension (the format allows 1..256).
-    entry_counts: tuple[int, ...] = (256, 128, 64, 32, 16)
+    #: Entry counts tried for every entry dimension (the format allows 1..256). The ladder
+    #: reaches down to 4 with positions to 10 bits, so that every Gaussian can stay at sizes
+    #: where pruning would otherwise start (DECISIONS D-28).
+    entry_counts: tuple[int, ...] = (256, 128, 64, 32, 16, 8, 4)
     #: Training views (never eval's) the sensitivity is taken at, at the sampled framing and
     #: at half its distance, and their side in pixels.
     views: int = 4
@@ -436,8 +438,8 @@ class AllocationConfig:
     close_weight: float = 1.0
     #: Grids (bits over a layer's box) the patch's positions may take; each is written and
     #: rendered (encoder/allocation.py, position_options). Empty: positions stay at the
-    #: preset's grid.
-    position_bits: tuple[int, ...] = (12, 13, 14, 15, 16)
+    #: preset's grid (DECISIONS D-28).
+    position_bits: tuple[int, ...] = (10, 11, 12, 13, 14, 15, 16)
     #: ECVQ variants of every codebook option (encoder/ecvq.py): for each strength, the same
     #: codebook with indices assigned at a cost per index bit of that many times its nearest
     #: indices' mean weighted error per group, measured like every option, so the multiplier

@@ -19,7 +19,6 @@ colour difference costs in proportion to the pair's size, over which merging sme
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from spcodec.cloud import GaussianCloud
 
@@ -38,6 +37,8 @@ def pair_costs(cloud: GaussianCloud) -> tuple[np.ndarray, np.ndarray, np.ndarray
     means = cloud.means.astype(np.float64)
     n = len(means)
     k = min(NEIGHBOURS + 1, n)
+    from scipy.spatial import cKDTree  # the encoder's extra: decode and info never load it
+
     _, near = cKDTree(means).query(means, k=k)
     near = np.asarray(near).reshape(n, k)
     # every column: with duplicate centres a Gaussian need not be first in its own list

@@ -5,10 +5,8 @@ rules, optimizer state kept aligned through every change, and short runs that gr
 from __future__ import annotations
 
 import copy
-import importlib.util
 import json
 import math
-import sys
 
 import numpy as np
 import pytest
@@ -32,7 +30,7 @@ from spcodec.imaging.training.loop import FitLoop
 from spcodec.imaging.training.optim import FreeGaussians, LearningRates
 from spcodec.imaging.training.targets import distillation_targets
 
-from conftest import REPO, write_transforms_dataset
+from conftest import load_bench_script, write_transforms_dataset
 
 pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
@@ -251,13 +249,7 @@ def test_a_short_densifying_run_grows_and_fits_better_than_without(tiny_targets)
 
 
 def _load_bench():
-    name = "train_vanilla"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, REPO / "bench" / "train_vanilla.py")
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
+    return load_bench_script("train_vanilla")
 
 
 @pytest.mark.filterwarnings("ignore::spcodec.imaging.evaluate.DatasetMismatchWarning")

@@ -3,7 +3,6 @@ merge, node files, the 3D Tiles index, Dask scheduling with retries, and resume.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import sys
 from pathlib import Path
@@ -25,7 +24,7 @@ from spcodec.tiling.partition import build_tree, input_identity, leaf_path, part
 from spcodec.tiling.rows import cloud_to_rows, rows_to_cloud
 from spcodec.tiling.source import open_source
 
-from conftest import REPO, real_file
+from conftest import load_bench_script, real_file
 
 pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
@@ -310,16 +309,9 @@ def test_cli_refuses_bad_input_with_one_line(scene_ply, tmp_path, args, message)
 
 
 # --------------------------------------------------------------------------- real scene
-def load_bench_scenes():
-    spec = importlib.util.spec_from_file_location("scenes", REPO / "bench" / "scenes.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 @pytest.mark.slow
 def test_a_tiled_copy_of_a_real_scene(tmp_path):
-    scenes = load_bench_scenes()
+    scenes = load_bench_script("scenes")
     base = read_ply(real_file(scenes.REAL["fourth_st"]))
     cloud = scenes.tiled_scene(base.subset(slice(0, 3000)), 12000)
     path = tmp_path / "tiled.ply"

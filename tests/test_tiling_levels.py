@@ -3,7 +3,6 @@ grows up the tree, and the work folder a finished build leaves (or not)."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -19,7 +18,7 @@ from spcodec.tiling import TilingConfig, build_tileset
 from spcodec.tiling.grouping import merge_level, pair_groups
 from spcodec.tiling.merge import MAX_OPACITY, ellipsoid_area, fit_opacity, weighted_quantile
 
-from conftest import REPO, real_file
+from conftest import load_bench_script, real_file
 
 pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
@@ -108,18 +107,11 @@ def test_one_stray_gaussian_does_not_set_the_spatial_error():
     assert 0 < base and spoiled < 1.5 * base
 
 
-def load_bench_scenes():
-    spec = importlib.util.spec_from_file_location("scenes", REPO / "bench" / "scenes.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 @pytest.mark.slow
 def test_geometric_error_grows_with_every_level_of_a_real_scene(tmp_path):
     """guitar, a quarter of it, in a tree three levels deep: every tile's error at least 1.5x the
     largest of its children's (the largest move, used before, stayed nearly level)."""
-    scenes = load_bench_scenes()
+    scenes = load_bench_script("scenes")
     cloud = read_ply(real_file(scenes.REAL["guitar"]))
     path = tmp_path / "guitar.ply"
     write_ply(path, cloud.subset(slice(0, len(cloud) // 4)))

@@ -148,18 +148,23 @@ def _gather(table: torch.Tensor, bins: TileBins, tiles: torch.Tensor, first: int
     return gid, table.index_select(1, gid.reshape(-1)).view(_FIELDS, len(tiles), chunk)
 
 
-def _fragments_fast(g: torch.Tensor, gid: torch.Tensor, px: torch.Tensor, py: torch.Tensor,
-                    t_prev: torch.Tensor, config: BlendConfig) -> _Fragments:
-    """One step without autograd: in-place arithmetic on fresh buffers (see the speed notes)."""
-    dtype = px.dtype
-    n, pixels = px.shape
+def _power(g: torch.Tensor, px: torch.Tensor, py: torch.Tensor) -> torch.Tensor:
+    """The exponent of every gathered Gaussian at every pixel, ``(n, pixels, C)``, in fresh
+    buffers the callers go on to change in place (the no-autograd steps)."""
     row = lambda k: g[k][:, None, :]  # noqa: E731  (n, 1, C) broadcast over pixels
     dx = px[:, :, None] - row(_MX)
     dy = py[:, :, None] - row(_MY)
     power = dx * row(_QA)
     power.addcmul_(dy, row(_QB)).mul_(dx)
-    power.addcmul_(dy.square_(), row(_QC))
-    alpha_raw = power.clamp_min_(_MIN_POWER).exp_().mul_(row(_OP))
+    return power.addcmul_(dy.square_(), row(_QC))
+
+
+def _fragments_fast(g: torch.Tensor, gid: torch.Tensor, px: torch.Tensor, py: torch.Tensor,
+                    t_prev: torch.Tensor, config: BlendConfig) -> _Fragments:
+    """One step without autograd: in-place arithmetic on fresh buffers (see the speed notes)."""
+    dtype = px.dtype
+    n, pixels = px.shape
+    alpha_raw = _power(g, px, py).clamp_min_(_MIN_POWER).exp_().mul_(g[_OP][:, None, :])
     alpha = F.threshold_(alpha_raw.clamp_max(config.max_alpha),
                          _below(ALPHA_THRESHOLD, dtype), 0.0)
     factors = px.new_empty(n, pixels, alpha.shape[2] + 1)
@@ -186,13 +191,8 @@ def _fragments_forward(g: torch.Tensor, gid: torch.Tensor, px: torch.Tensor, py:
     ``gid`` of the result are meaningful (the other fields alias them)."""
     dtype = px.dtype
     n, pixels = px.shape
-    row = lambda k: g[k][:, None, :]  # noqa: E731  (n, 1, C) broadcast over pixels
-    dx = px[:, :, None] - row(_MX)
-    dy = py[:, :, None] - row(_MY)
-    power = dx * row(_QA)
-    power.addcmul_(dy, row(_QB)).mul_(dx)
-    power.addcmul_(dy.square_(), row(_QC))
-    alpha = power.clamp_min_(_MIN_POWER).exp_().mul_(row(_OP)).clamp_max_(config.max_alpha)
+    alpha = _power(g, px, py).clamp_min_(_MIN_POWER).exp_().mul_(g[_OP][:, None, :])
+    alpha = alpha.clamp_max_(config.max_alpha)
     alpha = F.threshold_(alpha, _below(ALPHA_THRESHOLD, dtype), 0.0)
     factors = px.new_empty(n, pixels, alpha.shape[2] + 1)
     factors[:, :, 0] = t_prev

@@ -38,7 +38,7 @@ oracle the tests compare the hand-written backward with.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import lru_cache, partial
 from typing import Callable, Iterator
 
 import torch
@@ -160,13 +160,18 @@ def _power(g: torch.Tensor, px: torch.Tensor, py: torch.Tensor) -> torch.Tensor:
 
 
 def _fragments_fast(g: torch.Tensor, gid: torch.Tensor, px: torch.Tensor, py: torch.Tensor,
-                    t_prev: torch.Tensor, config: BlendConfig) -> _Fragments:
-    """One step without autograd: in-place arithmetic on fresh buffers (see the speed notes)."""
+                    t_prev: torch.Tensor, config: BlendConfig,
+                    forward_only: bool = False) -> _Fragments:
+    """One step without autograd: in-place arithmetic on fresh buffers (see the speed notes).
+    ``forward_only`` (a pass that keeps no fragments for a backward one) also clamps and weights
+    in the alpha buffer, so only ``weight``, ``t_next``, ``g`` and ``gid`` of the result are
+    meaningful then (the other fields alias them)."""
     dtype = px.dtype
     n, pixels = px.shape
     alpha_raw = _power(g, px, py).clamp_min_(_MIN_POWER).exp_().mul_(g[_OP][:, None, :])
-    alpha = F.threshold_(alpha_raw.clamp_max(config.max_alpha),
-                         _below(ALPHA_THRESHOLD, dtype), 0.0)
+    clamped = alpha_raw.clamp_max_(config.max_alpha) if forward_only else \
+        alpha_raw.clamp_max(config.max_alpha)
+    alpha = F.threshold_(clamped, _below(ALPHA_THRESHOLD, dtype), 0.0)
     factors = px.new_empty(n, pixels, alpha.shape[2] + 1)
     factors[:, :, 0] = t_prev
     one_minus = torch.sub(px.new_ones(()), alpha, out=factors[:, :, 1:])
@@ -180,32 +185,13 @@ def _fragments_fast(g: torch.Tensor, gid: torch.Tensor, px: torch.Tensor, py: to
         # after ~17 more opaque fragments; none occurred in the benchmark scenes.)
         weight = F.threshold(t_incl, stop, 0.0).mul_(alpha).div_(one_minus)
     else:
-        weight = t_excl * alpha
+        weight = alpha.mul_(t_excl) if forward_only else t_excl * alpha
+    if forward_only:
+        return _Fragments(gid, g, weight, weight, one_minus, t_excl, t_incl, weight, t_next)
     return _Fragments(gid, g, alpha_raw, alpha, one_minus, t_excl, t_incl, weight, t_next)
 
 
-def _fragments_forward(g: torch.Tensor, gid: torch.Tensor, px: torch.Tensor, py: torch.Tensor,
-                       t_prev: torch.Tensor, config: BlendConfig) -> _Fragments:
-    """The step of :func:`_fragments_fast` for a forward pass alone: the same arithmetic, but
-    the clamp and the weight reuse the alpha buffer, so only ``weight``, ``t_next``, ``g`` and
-    ``gid`` of the result are meaningful (the other fields alias them)."""
-    dtype = px.dtype
-    n, pixels = px.shape
-    alpha = _power(g, px, py).clamp_min_(_MIN_POWER).exp_().mul_(g[_OP][:, None, :])
-    alpha = alpha.clamp_max_(config.max_alpha)
-    alpha = F.threshold_(alpha, _below(ALPHA_THRESHOLD, dtype), 0.0)
-    factors = px.new_empty(n, pixels, alpha.shape[2] + 1)
-    factors[:, :, 0] = t_prev
-    one_minus = torch.sub(px.new_ones(()), alpha, out=factors[:, :, 1:])
-    products = torch.cumprod(factors, dim=2)
-    t_excl, t_incl = products[:, :, :-1], products[:, :, 1:]
-    stop = _below(TRANSMITTANCE_THRESHOLD, dtype)
-    t_next = F.threshold(t_incl[:, :, -1], stop, 0.0)
-    if bool((t_next == 0).any()):  # as in _fragments_fast
-        weight = F.threshold(t_incl, stop, 0.0).mul_(alpha).div_(one_minus)
-    else:
-        weight = alpha.mul_(t_excl)
-    return _Fragments(gid, g, weight, weight, one_minus, t_excl, t_incl, weight, t_next)
+_fragments_forward = partial(_fragments_fast, forward_only=True)
 
 
 def _fragments_plain(g: torch.Tensor, gid: torch.Tensor, px: torch.Tensor, py: torch.Tensor,

@@ -102,14 +102,16 @@ class TargetJudge:
         """The predicted evaluation close-up PSNR (dB) of ``scene``."""
         return self.search(scene) - self.offset
 
-    def verify(self, scene: GaussianCloud) -> float:
-        """The evaluation's close-up PSNR of ``scene``, which also re-sets the offset."""
+    def verify(self, scene: GaussianCloud, predicted: float | None = None) -> float:
+        """The evaluation's close-up PSNR of ``scene``, which also re-sets the offset.
+        ``predicted``: what this judge said of ``scene`` (then it is not judged small again)."""
         if self._full is None:  # the original's renders at full size, when first needed
             self._full = self._full_judge()
         self.full_judgements += 1
         full = self._full(scene)
         if self._full is not self.search:
-            self.offset = self.search(scene) - full
+            searched = self.search(scene) if predicted is None else predicted + self.offset
+            self.offset = searched - full
         return full
 
 

@@ -351,18 +351,25 @@ class QualityTarget(Sizing):
             "judged_at_full_resolution": self.judge.full_judgements})
         return reach.count
 
-    def landed(self, upper: int, file_of: Callable[[int], GaussianCloud],
+    def landed(self, upper: int, file_of: Callable[[int], bytes],
                known: dict[int, float]) -> QualityPlan:
         """:func:`fewest_reaching` with the judge's predictions, its answer then judged at the
         evaluation's resolution: when that falls short of the target, the judge's offset is
         taken from that file and the search goes on (at most :data:`LANDING_TRIES` times), so
         the count returned is judged on the evaluation's own scale."""
         judged = dict(known)
+        made: dict[int, bytes] = {}  # the files judged, so the answer is not encoded again
+
+        def decoded(count: int) -> GaussianCloud:
+            if count not in made:
+                made[count] = file_of(count)
+            return decode_layers(made[count]).cloud
+
         for _ in range(LANDING_TRIES):
-            reach = fewest_reaching(self.target, upper, lambda c: self.judge(file_of(c)), judged)
+            reach = fewest_reaching(self.target, upper, lambda c: self.judge(decoded(c)), judged)
             if not reach.reached:
                 return reach
-            full = self.judge.verify(file_of(reach.count))
+            full = self.judge.verify(decoded(reach.count), predicted=reach.psnr)
             reach.judged[reach.count] = reach.psnr = full
             if full >= self.target:
                 return reach
@@ -453,23 +460,21 @@ def pruned_file(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud
 
 
 def _pruned_files(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
-                  weights: np.ndarray) -> Callable[[int], GaussianCloud]:
-    """count -> the decoded file with the ``count`` most important patch Gaussians, coded
-    without retraining (quality control's first search)."""
-    return lambda count: decode_layers(
-        pruned_file(writer, encoder, patch, weights, count).data).cloud
+                  weights: np.ndarray) -> Callable[[int], bytes]:
+    """count -> the file with the ``count`` most important patch Gaussians, coded without
+    retraining (quality control's first search)."""
+    return lambda count: pruned_file(writer, encoder, patch, weights, count).data
 
 
 def _quantized_files(writer: SceneWriter, encoder: PatchEncoder, trained: GaussianCloud,
                      quantized: Quantized, importance: np.ndarray
-                     ) -> Callable[[int], GaussianCloud]:
-    """count -> the decoded file with the ``count`` most important quantized Gaussians."""
-    def decoded(count: int) -> GaussianCloud:
+                     ) -> Callable[[int], bytes]:
+    """count -> the file with the ``count`` most important quantized Gaussians."""
+    def file(count: int) -> bytes:
         top = prune_by_importance(importance, count)
-        data = writer.write(encoder.layer(trained.subset(top), quantized.subset(top),
+        return writer.write(encoder.layer(trained.subset(top), quantized.subset(top),
                                           importance[top]))
-        return decode_layers(data).cloud
-    return decoded
+    return file
 
 
 def _sized(writer: SceneWriter, encoder: PatchEncoder, trained: GaussianCloud,

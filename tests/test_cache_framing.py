@@ -94,3 +94,7 @@ def test_the_target_judge_predicts_at_fewer_pixels_and_verifies_at_full(tmp_path
     assert judge.verify(model) == pytest.approx(full, abs=1e-9) and judge.full_judgements == 1
     assert judge.offset == pytest.approx(small - full, abs=1e-9)
     assert judge(model) == pytest.approx(full, abs=1e-9)  # the offset corrects the prediction
+    told = TargetJudge(scene, device="cpu", cache=tmp_path, resolution=200)
+    told.search = None  # given its own prediction, verify must not judge small again
+    assert told.verify(model, predicted=small) == pytest.approx(full, abs=1e-9)
+    assert told.offset == pytest.approx(small - full, abs=1e-9)

@@ -8,13 +8,11 @@ prefix of the inner file, which keeps progressive decoding working through the w
 
 from __future__ import annotations
 
-import hashlib
 import struct
-import threading
 import zlib
-from collections import OrderedDict
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Callable
 
 from .container import GZIP_MAGIC, Codec
 from .errors import FormatError, LimitError
@@ -41,12 +39,13 @@ def crc32(data: bytes | memoryview) -> int:
 
 
 # ------------------------------------------------------------------------------ section codecs
+Compressor = Callable[[Codec, bytes, int | None, int | None], bytes]
+"""What the writer compresses sections with: :func:`compress`, or an encoder's wrapper of it."""
+
+
 def compress(codec: Codec, raw: bytes, level: int | None = None,
              column_bytes: int | None = None) -> bytes:
-    """Compress one section payload. Deterministic for given input, codec, level and columns,
-    so the last few results are remembered (:class:`_Recent`): an encoder that measures a
-    section's compressed size and then writes it, or writes one encoding several times, pays
-    for each compression once.
+    """Compress one section payload. Deterministic for given input, codec, level and columns.
 
     ``column_bytes`` says the payload is made of columns of that many bytes (the index columns of
     [R-52]). zlib then also tries a deflate block per column, so each column gets a Huffman code
@@ -56,50 +55,6 @@ def compress(codec: Codec, raw: bytes, level: int | None = None,
     """
     if codec == Codec.NONE:
         return bytes(raw)
-    key = (int(codec), level, column_bytes, len(raw),
-           hashlib.blake2b(raw, digest_size=20).digest())
-    stored = _RECENT.get(key)
-    if stored is None:
-        stored = _compress(codec, raw, level, column_bytes)
-        _RECENT.put(key, stored)
-    return stored
-
-
-class _Recent:
-    """The most recent compressions, up to ``max_bytes`` of output (least recently used first
-    out). Thread-safe: encoders compress sections on several threads."""
-
-    def __init__(self, max_bytes: int) -> None:
-        self.max_bytes = max_bytes
-        self.entries: OrderedDict[tuple, bytes] = OrderedDict()
-        self.size = 0
-        self.lock = threading.Lock()
-
-    def get(self, key: tuple) -> bytes | None:
-        with self.lock:
-            stored = self.entries.get(key)
-            if stored is not None:
-                self.entries.move_to_end(key)
-            return stored
-
-    def put(self, key: tuple, stored: bytes) -> None:
-        if len(stored) > self.max_bytes:
-            return
-        with self.lock:
-            if key in self.entries:
-                return
-            self.entries[key] = stored
-            self.size += len(stored)
-            while self.size > self.max_bytes:
-                _, dropped = self.entries.popitem(last=False)
-                self.size -= len(dropped)
-
-
-_RECENT = _Recent(64 << 20)
-
-
-def _compress(codec: Codec, raw: bytes, level: int | None, column_bytes: int | None) -> bytes:
-    """:func:`compress` without the memory of recent results."""
     if codec == Codec.ZLIB:
         level = 9 if level is None else level
         plain = zlib.compress(raw, level)

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .attributes import PatchAttribute
-from .codecs import compress, crc32, gzip_wrap, read_gzip_layer_ends
+from .codecs import Compressor, compress, crc32, gzip_wrap, read_gzip_layer_ends
 from .container import (
     CONTEXTS_MINOR,
     FIXED_HEADER_SIZE,
@@ -198,8 +198,9 @@ def assemble(sections: list[SectionSpec], layers: list[LayerSpec], sh_degree: in
 
 def assemble_file(sections: list[SectionSpec], layers: list[LayerSpec], sh_degree: int,
                   level: int | None = None, header_overrides: dict | None = None,
-                  store_when_larger: bool = True) -> WrittenFile:
-    """:func:`assemble` with the layout it laid out."""
+                  store_when_larger: bool = True, compressor: Compressor = compress) -> WrittenFile:
+    """:func:`assemble` with the layout it laid out; ``compressor`` compresses each section (an
+    encoder that writes the same sections many times passes one that remembers)."""
     start = header_size(len(layers), len(sections))
     toc = np.zeros(len(sections), dtype=SECTION_DTYPE)
     bodies, offset, extents = [], start, []
@@ -207,7 +208,7 @@ def assemble_file(sections: list[SectionSpec], layers: list[LayerSpec], sh_degre
     for i, sec in enumerate(sections):
         codec, stored = sec.codec, sec.stored
         if stored is None:
-            stored = compress(Codec(codec), sec.raw, level, sec.column_bytes)
+            stored = compressor(Codec(codec), sec.raw, level, sec.column_bytes)
             if store_when_larger and codec != Codec.NONE and len(stored) >= len(sec.raw):
                 codec, stored = Codec.NONE, bytes(sec.raw)
         toc[i] = (sec.type, codec,
@@ -310,11 +311,13 @@ def build_bitstream(scene: EncodedScene, options: WriteOptions | None = None) ->
     return write_file(scene, options).data
 
 
-def write_file(scene: EncodedScene, options: WriteOptions | None = None) -> WrittenFile:
+def write_file(scene: EncodedScene, options: WriteOptions | None = None,
+               compressor: Compressor = compress) -> WrittenFile:
     """:func:`build_bitstream` with the file's layout (section and layer extents)."""
     options = options or WriteOptions()
     sections, layers = scene_sections(scene, options.codec)
-    written = assemble_file(sections, layers, scene.sh_degree, options.level)
+    written = assemble_file(sections, layers, scene.sh_degree, options.level,
+                            compressor=compressor)
     return gzip_file(written) if options.gzip else written
 
 

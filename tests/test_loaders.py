@@ -7,6 +7,7 @@ node, the npm packages (``npm ci`` in web/, web/viewer/ and web/examples/) or Ch
 
 from __future__ import annotations
 
+import json
 import urllib.parse
 from pathlib import Path
 
@@ -149,3 +150,69 @@ def test_spark_loader_reports_a_corrupt_file_once(files, tmp_path):
                          "captures": [{"when": "complete"}], "timeoutMs": 60000}])[0]
     state = report["state"]
     assert state["status"] == "error" and state["error"]["message"].count("section-crc") == 1
+
+
+@pytest.fixture(scope="module")
+def tileset(tmp_path_factory) -> Path:
+    """A tileset (branching 4, two levels below the root) of a synthetic scene, 256 Gaussians
+    a leaf: more Gaussians in all than the budget the pages are given."""
+    require("playcanvas", "three", "@sparkjsdev/spark")
+    import torch
+
+    from spcodec.synthetic import make_scene
+    from spcodec.tiling import TilingConfig, build_tileset
+
+    folder = tmp_path_factory.mktemp("loader-tiles")
+    spcodec.write_ply(folder / "scene.ply", make_scene(seed=4, curves=4, per_curve=200, blobs=3300).cloud)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        build_tileset(folder / "scene.ply", folder / "tiles",
+                      TilingConfig(leaf_size=256, branching=4, workers=0))
+    finally:
+        torch.set_num_threads(threads)
+    return folder / "tiles"
+
+
+def test_both_loaders_stream_a_tileset_by_view_and_draw_the_same_tiles(tileset, tmp_path):
+    """The example pages stream a tileset.json through loadTileset into real Spark and PlayCanvas:
+    within the budget, the whole scene covered, refined past the root, and, from the same
+    camera, the same tiles in both, which the two renderers draw alike."""
+    index = json.loads((tileset / "tileset.json").read_text())
+    total = sum(t["gaussians"] for t in tile_counts(index["root"]))
+    budget = total // 2
+    query = {"src": f"/scenes/{tileset.name}/tileset.json", "width": 320, "height": 240, "capture": 1,
+             "budget": budget, "sse": 4}
+    with serving([tileset]) as base:
+        spark = shoot_tileset(f"{base}/examples/spark.html?{urllib.parse.urlencode(query)}",
+                              tmp_path / "spark.png")
+        camera = spark["camera"]
+        query.update(cam=",".join(map(repr, camera["position"])),
+                     target=",".join(map(repr, camera["target"])), fov=camera["fov"])
+        playcanvas = shoot_tileset(f"{base}/examples/playcanvas.html?{urllib.parse.urlencode(query)}",
+                                   tmp_path / "playcanvas.png")
+    root = index["root"]["content"]["uri"]
+    for state in (spark, playcanvas):
+        assert state["covers"] is True
+        assert 0 < state["gaussians"] <= budget < total
+        assert root not in state["tilesShown"], "refined past the root"
+    assert spark["tilesShown"] == playcanvas["tilesShown"]
+    assert spark["gaussians"] == playcanvas["gaussians"]
+    across = psnr(tmp_path / "playcanvas.png", tmp_path / "spark.png")
+    print(f"\n{len(spark['tilesShown'])} tiles, {spark['gaussians']} of {total} Gaussians (budget "
+          f"{budget}); Spark against PlayCanvas {across:.1f} dB, {lit(tmp_path / 'spark.png'):.0%} lit")
+    assert lit(tmp_path / "spark.png") > 0.02
+    assert across >= CROSS_RENDERER_DB
+
+
+def tile_counts(tile: dict) -> list[dict]:
+    """Every tile's ``extras.spcodec`` below and including ``tile``."""
+    return [tile["extras"]["spcodec"], *(t for child in tile.get("children", []) for t in tile_counts(child))]
+
+
+def shoot_tileset(url: str, path: Path) -> dict:
+    report = drive([{"url": url, "captures": [{"when": "complete", "path": str(path)}],
+                     "timeoutMs": 120000}])[0]
+    assert report["error"] is None, (report["error"], report["console"][-5:])
+    assert report["state"]["status"] == "complete", report["state"]
+    return report["state"]

@@ -1,19 +1,21 @@
 // An .spc in a PlayCanvas app, the way an app adds it: `loadSpc` streams the layers into
-// entities (the default), or `registerSpc` lets the app load it as a gsplat asset (?mode=asset).
+// entities (the default), or `registerSpc` lets the app load it as a gsplat asset (?mode=asset);
+// `loadTileset` streams a tileset (src ending in .json, `python -m spcodec.tiling`) by view.
 //
-// URL parameters: src (an .spc, or a .glb written by `spcodec embed`), mode=stream|asset,
-// width/height, cam/target/fov (camera, in the upright +Y world), up (the scene's up axis where
-// the file does not say), capture=1 (tests). `window.spcViewer` holds the page's progress in the
+// URL parameters: src (an .spc, a .glb written by `spcodec embed`, or a tileset.json),
+// mode=stream|asset, width/height, cam/target/fov (camera, in the upright +Y world), up (the
+// scene's up axis where the file does not say), budget/sse (a tileset's splat budget and
+// screen-space error in px), capture=1 (tests). `window.spcViewer` holds the page's progress in the
 // form the browser tests read (status, layersShown, tFirstPicture, camera, error).
 
 import * as pc from 'playcanvas';
-import { configureDraco, rotatePositions } from 'spcodec';
+import { boxCorners, configureDraco, rotatePositions } from 'spcodec';
 import { browserDraco } from 'spcodec/draco-browser';
-import { loadSpc, registerSpc } from 'spcodec/playcanvas';
+import { loadSpc, loadTileset, registerSpc } from 'spcodec/playcanvas';
 
 const params = new URLSearchParams(location.search);
 const state = { status: 'loading', layersShown: 0, gaussians: 0, tFirstPicture: null, camera: null,
-  error: null };
+  error: null, tilesShown: null, covers: null };
 window.spcViewer = state;
 const canvas = document.getElementById('scene');
 const say = (text) => { document.getElementById('status').textContent = text; };
@@ -87,7 +89,9 @@ async function main() {
   app.root.addChild(camera);
   const start = performance.now();
   const shown = whenDrawn(app);
-  if (params.get('mode') === 'asset') {
+  if (src.endsWith('.json')) {
+    await showTileset(app, camera, src);
+  } else if (params.get('mode') === 'asset') {
     registerSpc(app, pc, { up: params.get('up') });
     const asset = new pc.Asset('scene', 'gsplat', { url: src });
     app.assets.add(asset);
@@ -126,6 +130,27 @@ async function main() {
   state.tFirstPicture ??= performance.now() - start;
   state.status = 'complete';
   say(`${src}: ${state.gaussians} Gaussians`);
+}
+
+/** Stream a tileset by view: the camera frames the root's box (or stands where the URL says),
+ * the loader selects again whenever it moved, and the page waits until every node of the
+ * selection is in. */
+async function showTileset(app, camera, src) {
+  const positive = (name) => (Number(params.get(name)) > 0 ? Number(params.get(name)) : undefined);
+  const errors = [];
+  const tiles = await loadTileset(app, pc, src, {
+    camera, budget: positive('budget'), threshold: positive('sse'), up: params.get('up'),
+    onOpen: (tileset, rotation) => placeCamera(camera, boxCorners(tileset.root, rotation)),
+    onShown: (shown, covers) => {
+      state.tilesShown = [...shown].map((tile) => tile.id).sort();
+      state.gaussians = [...shown].reduce((sum, tile) => sum + tile.gaussians, 0);
+      state.covers = covers;
+      say(`tiles: ${shown.size}, Gaussians: ${state.gaussians}`);
+    },
+    onError: (error, tile) => errors.push(`${tile.id}: ${error instanceof Error ? error.message : error}`),
+  });
+  await tiles.stream.whenIdle();
+  if (errors.length) throw new Error(`${errors.length} node(s) did not load, first ${errors[0]}`);
 }
 
 main().catch((error) => {

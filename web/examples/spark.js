@@ -1,19 +1,21 @@
-// An .spc in a three.js app rendered by Spark: `loadSpc` streams its layers into SplatMeshes.
+// An .spc in a three.js app rendered by Spark: `loadSpc` streams its layers into SplatMeshes,
+// and `loadTileset` streams a tileset (src ending in .json, `python -m spcodec.tiling`) by view.
 //
-// URL parameters: src (an .spc, or a .glb written by `spcodec embed`), width/height,
+// URL parameters: src (an .spc, a .glb written by `spcodec embed`, or a tileset.json), width/height,
 // cam/target/fov (camera, in the upright +Y world), up (the scene's up axis where the file does
 // not say), ply=1 (load `src` as a PLY with Spark's own loader instead, for comparison),
-// capture=1. `window.spcViewer` holds the progress the browser tests read.
+// budget/sse (a tileset's splat budget and screen-space error in px), capture=1.
+// `window.spcViewer` holds the progress the browser tests read.
 
 import * as spark from '@sparkjsdev/spark';
-import { configureDraco, rotatePositions, upRotation } from 'spcodec';
+import { boxCorners, configureDraco, rotatePositions, upRotation } from 'spcodec';
 import { browserDraco } from 'spcodec/draco-browser';
-import { loadSpc } from 'spcodec/spark';
+import { loadSpc, loadTileset } from 'spcodec/spark';
 import * as THREE from 'three';
 
 const params = new URLSearchParams(location.search);
 const state = { status: 'loading', layersShown: 0, gaussians: 0, tFirstPicture: null, camera: null,
-  error: null };
+  error: null, tilesShown: null, covers: null };
 window.spcViewer = state;
 const canvas = document.getElementById('scene');
 const say = (text) => { document.getElementById('status').textContent = text; };
@@ -61,7 +63,9 @@ async function main() {
     placed = true;
   };
   renderer.setAnimationLoop(() => renderer.render(scene, camera));
-  if (params.has('ply')) {  // Spark's own PLY loader, for comparison
+  if (src.endsWith('.json')) {
+    await showTileset(src, { scene, camera, renderer, place, start });
+  } else if (params.has('ply')) {  // Spark's own PLY loader, for comparison
     const rotation = upRotation(params.get('up'));
     const group = new THREE.Group();
     group.quaternion.set(...rotation);
@@ -92,6 +96,36 @@ async function main() {
   for (let i = 0; i < 5; i++) await new Promise((resolve) => requestAnimationFrame(resolve));
   state.status = 'complete';
   say(`${src}: ${state.gaussians} Gaussians`);
+}
+
+/** Stream a tileset by view: the camera frames the root's box (or stands where the URL says),
+ * the render loop asks for a new selection when the camera moved, and the page is complete once
+ * every node of the selection is in and drawn. */
+async function showTileset(src, { scene, camera, renderer, place, start }) {
+  const positive = (name) => (Number(params.get(name)) > 0 ? Number(params.get(name)) : undefined);
+  const errors = [];
+  const tiles = await loadTileset(src, {
+    THREE, spark, camera, parent: scene, height: () => renderer.domElement.height,
+    budget: positive('budget'), threshold: positive('sse'), up: params.get('up'),
+    onOpen: (tileset, rotation) => {  // the URL's camera, else the root's box, upright
+      place(boxCorners(tileset.root, rotation));
+      camera.updateMatrixWorld();
+    },
+    onShown: (shown, covers) => {
+      state.tilesShown = [...shown].map((tile) => tile.id).sort();
+      state.gaussians = [...shown].reduce((sum, tile) => sum + tile.gaussians, 0);
+      state.covers = covers;
+      state.tFirstPicture ??= performance.now() - start;
+      say(`tiles: ${shown.size}, Gaussians: ${state.gaussians}`);
+    },
+    onError: (error, tile) => errors.push(`${tile.id}: ${error instanceof Error ? error.message : error}`),
+  });
+  renderer.setAnimationLoop(() => {  // replaces the page's loop: select where the camera is, then draw
+    tiles.update();
+    renderer.render(scene, camera);
+  });
+  await tiles.stream.whenIdle();
+  if (errors.length) throw new Error(`${errors.length} node(s) did not load, first ${errors[0]}`);
 }
 
 main().catch((error) => {

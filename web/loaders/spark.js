@@ -248,11 +248,13 @@ export async function loadSpc(url, { THREE, spark, parent = null, maxLayer = Inf
  * @param {(arrival: import('../src/tilestream.js').TileArrival) => void} [options.onArrival]
  * @param {(shown: Set<import('../src/tileset.js').Tile>, covers: boolean) => void} [options.onShown]
  * @param {(error: unknown, tile: import('../src/tileset.js').Tile) => void} [options.onError]
+ * @param {(tileset: import('../src/tileset.js').Tileset, rotation: number[], indexBytes: number) => void} [options.onOpen]
+ *   once the index is read, before the first selection: where a page places its camera
  * @returns {Promise<{group: InstanceType<T['Group']>, stream: import('../src/tilestream.js').TilesetStream<M>,
  *   tileset: import('../src/tileset.js').Tileset, update(): void, close(): void}>}
  */
 export async function loadTileset(url, { THREE, spark, camera, height, parent = null, budget, threshold,
-  up = null, concurrency, fetchImpl, onArrival, onShown, onError } = /** @type {any} */ ({})) {
+  up = null, concurrency, fetchImpl, onArrival, onShown, onError, onOpen } = /** @type {any} */ ({})) {
   if (!THREE || !spark?.SplatMesh || !spark.PackedSplats || !spark.utils || !camera) {
     throw new Error('loadTileset needs { THREE, spark, camera, height }: three.js, Spark as a module, '
       + 'the camera the selection follows and the viewport height');
@@ -281,6 +283,7 @@ export async function loadTileset(url, { THREE, spark, camera, height, parent = 
     onArrival, onShown, onError });
   const { tileset, rotation } = await stream.open();
   group.quaternion.set(...rotation);
+  onOpen?.(tileset, rotation, stream.indexBytes);
   const position = new THREE.Vector3(), direction = new THREE.Vector3();
   let last = '';
   const update = (force = false) => {

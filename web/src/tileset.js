@@ -292,6 +292,23 @@ export function rotate(v, q) {
     v[2] + 2 * (w * cz + x * cy - y * cx)];
 }
 
+/**
+ * The eight corners of a tile's box, turned by `rotation` (the tileset's, as the loaders report
+ * it), flat x, y, z: what a page frames its camera on before any node has arrived.
+ * @param {Tile} tile
+ * @param {number[]} [rotation]  a unit quaternion (x, y, z, w); none turns nothing
+ * @returns {Float32Array}
+ */
+export function boxCorners(tile, rotation = [0, 0, 0, 1]) {
+  const b = tile.box, out = new Float32Array(24);
+  let k = 0;
+  for (const a of [1, -1]) for (const c of [1, -1]) for (const d of [1, -1]) {
+    const corner = [0, 1, 2].map((i) => b[i] + a * b[3 + i] + c * b[6 + i] + d * b[9 + i]);
+    out.set(rotate(corner, rotation), 3 * k++);
+  }
+  return out;
+}
+
 // ----------------------------------------------------------------------------- selection
 /** What the selection computed of a tile: its view class (never lower than its parent's), its
  * offset from and angle to the view's centre (radians), and its screen-space error (pixels).

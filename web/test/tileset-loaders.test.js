@@ -111,15 +111,31 @@ function fakeSpark() {
 }
 
 test('Spark: upright group, one mesh per node, update() follows the camera and drops tiles', async () => {
-  const { fetchImpl } = await served();
+  const served_ = await served();
+  /** @type {string[]} */
+  const nodeFetches = [];
+  const fetchImpl = async (url) => {
+    if (!String(url).endsWith('tileset.json')) nodeFetches.push(String(url));
+    return served_.fetchImpl(url);
+  };
   const view = { position: [-30, 0, -4], forward: [1, 0, 0] };
   const camera = { fov: 50, aspect: 4 / 3,
     getWorldPosition: (v) => Object.assign(v, { x: view.position[0], y: view.position[1], z: view.position[2] }),
     getWorldDirection: (v) => Object.assign(v, { x: view.forward[0], y: view.forward[1], z: view.forward[2] }) };
   const count = (await decode(NODE)).count;
+  /** @type {any[]} */
+  const opened = [];
   const tiles = await loadSpark(URL_, { THREE: fakeThree, spark: /** @type {any} */ (fakeSpark()),
-    camera, height: () => 480, fetchImpl, up: '+y', threshold: 1e-9, budget: 8 * count });
+    camera, height: () => 480, fetchImpl, up: '+y', threshold: 1e-9, budget: 8 * count,
+    onOpen: (tileset, rotation) => opened.push({ tileset, rotation, fetched: nodeFetches.slice() }) });
   assert.deepEqual(/** @type {any} */ (tiles.group).quaternion.xyzw, [0, 0, 0, 1]);
+  assert.equal(opened.length, 1, 'onOpen once, with the index');
+  assert.equal(opened[0].tileset, tiles.tileset);
+  assert.deepEqual(opened[0].rotation, [0, 0, 0, 1]);
+  // before the first selection: at most the root (which every view needs) has been asked for
+  assert.ok(opened[0].fetched.every((url) => url.endsWith(`/t/${served_.doc.root.content.uri}`)),
+    opened[0].fetched.join());
+  assert.ok(nodeFetches.length > opened[0].fetched.length + 1, 'the selection fetched more afterwards');
   await tiles.stream.whenIdle();
   const group = /** @type {any} */ (tiles.group);
   const before = group.children.slice();

@@ -7,7 +7,8 @@ import assert from 'node:assert/strict';
 import { test } from 'node:test';
 
 import {
-  TilesetError, VIEW, cameraInTileset, coversRoot, parseTileset, screenSpaceError, selectTiles, visibleTiles,
+  TilesetError, VIEW, boxCorners, cameraInTileset, coversRoot, parseTileset, rotate, screenSpaceError,
+  selectTiles, visibleTiles,
 } from '../src/tileset.js';
 import { rng } from './helpers.js';
 import { quadtree } from './tileset-docs.js';
@@ -185,4 +186,26 @@ test('a camera in the drawn world is turned back into the tileset frame', () => 
   assert.throws(() => selectTiles(parseTileset(quadtree({ depth: 1 })), camera([0, 0, 0], [0, 0, 0])),
     /forward vector has no direction/);
   assert.throws(() => selectTiles(parseTileset(quadtree({ depth: 1 })), world, { budget: -1 }), /budget/);
+});
+
+test('a box has eight corners, each the centre plus or minus every half-axis, turned as asked', () => {
+  const tile = /** @type {any} */ ({ box: [1, 2, 3, 2, 0, 0, 0, 0.5, 0.5, 0, -0.5, 0.5] });
+  const corners = boxCorners(tile);
+  const points = [];
+  for (let k = 0; k < 8; k++) points.push(Array.from(corners.subarray(3 * k, 3 * k + 3)));
+  assert.equal(new Set(points.map((p) => p.map((x) => x.toFixed(6)).join())).size, 8);
+  const mean = [0, 1, 2].map((a) => points.reduce((sum, p) => sum + p[a], 0) / 8);
+  assert.deepEqual(mean.map((x) => +x.toFixed(6)), [1, 2, 3]);
+  const axes = [tile.box.slice(3, 6), tile.box.slice(6, 9), tile.box.slice(9, 12)];  // orthogonal here
+  const dot = (x, y) => x[0] * y[0] + x[1] * y[1] + x[2] * y[2];
+  for (const p of points) {  // a corner: the offset from the centre is +-u +-v +-w
+    const d = p.map((x, a) => x - tile.box[a]);
+    for (const axis of axes) assert.ok(Math.abs(Math.abs(dot(d, axis) / dot(axis, axis)) - 1) < 1e-6);
+  }
+  const q = [Math.SQRT1_2, 0, 0, Math.SQRT1_2];  // 90 degrees about x
+  const turned = boxCorners(tile, q);
+  for (let k = 0; k < 8; k++) {
+    const expected = rotate(points[k], q);
+    for (let a = 0; a < 3; a++) assert.ok(Math.abs(turned[3 * k + a] - expected[a]) < 1e-5);
+  }
 });

@@ -34,6 +34,7 @@ from spcodec.imaging.sensitivity import Sensitivity
 from spcodec.sections import Codebook, pack_positions
 
 from .config import AllocationConfig, EncoderConfig, PatchConfig
+from .kmeans import codebook_ladder
 from .morton import morton_codes
 from .patch import coded_attributes, encode_positions, final_codebook, train_codebook
 
@@ -165,15 +166,27 @@ class PrecisionSearch:
             base = dataclasses.replace(base, sh_zero_entry=True)
         options: dict[str, list[Option]] = {}
         for index, (attr, coded) in enumerate(coded_attributes(sample).items()):
-            options[attr.name] = [
-                option
-                for dim in LADDERS[attr.name]
-                for entries in sorted({min(c, _distinct(coded, dim))
-                                       for c in config.entry_counts}, reverse=True)
-                for option in _measure_options(sample, attr, coded, dim, entries, sample_weights,
-                                               base, seed + 7919 * index, framing, weight, scale,
-                                               config.ecvq_strengths)]
+            options[attr.name] = []
+            for dim in LADDERS[attr.name]:
+                distinct = _distinct(coded, dim)  # once per shape: the sort is the cost
+                sizes = sorted({min(c, distinct) for c in config.entry_counts}, reverse=True)
+                books = _codebooks(coded, dim, sizes, sample_weights, base, seed + 7919 * index)
+                for entries in sizes:
+                    options[attr.name] += _measure_options(
+                        sample, attr, coded, books[entries], sample_weights, base, framing,
+                        weight, scale, config.ecvq_strengths)
         return cls(options, n, config)
+
+    def rescaled(self, count: int) -> "PrecisionSearch":
+        """This search for a patch of ``count`` Gaussians of the same scene: every option's
+        bits per Gaussian as measured, its distortion (a sum over the patch's Gaussians) in
+        proportion to the count. What a size target re-encoding without its sketch asks: the
+        sketch's Gaussians join the patch, and measuring every option again on nearly the same
+        patch would double the search for a choice the real trial writes correct anyway."""
+        factor = count / max(self.count, 1)
+        options = {name: [dataclasses.replace(o, distortion=o.distortion * factor) for o in opts]
+                   for name, opts in self.options.items()}
+        return dataclasses.replace(self, options=options, count=count)
 
     def with_positions(self, options: list[PositionOption]) -> "PrecisionSearch":
         """This search with the grids of :func:`position_options` among its choices."""
@@ -247,16 +260,30 @@ class PrecisionSearch:
             best = Allocation({**best.options, name: option}, best.count)
 
 
-def _measure_options(sample: GaussianCloud, attr: PatchAttribute, coded: np.ndarray, dim: int,
-                     entries: int, weights: np.ndarray | None, base: PatchConfig, seed: int,
+def _codebooks(coded: np.ndarray, dim: int, sizes: list[int], weights: np.ndarray | None,
+               base: PatchConfig, seed: int) -> dict[int, np.ndarray]:
+    """{size: trained entries} of ``coded``'s ``dim``-wide groups at each of ``sizes``: one
+    :func:`~.kmeans.codebook_ladder` (one draw; the larger vector codebooks warm-started from
+    the largest) with the sampled trainer, else one training per size as the encoder trains."""
+    if base.kmeans != "sampled":
+        return {size: train_codebook(coded, dim, size, weights, base, seed) for size in sizes}
+    n, width = coded.shape
+    groups = coded.reshape(n * (width // dim), dim)
+    w = None if weights is None else np.repeat(weights, width // dim)
+    return codebook_ladder(groups, w, sizes, seed, samples=base.kmeans_samples,
+                           iterations=base.kmeans_iterations)
+
+
+def _measure_options(sample: GaussianCloud, attr: PatchAttribute, coded: np.ndarray,
+                     trained: np.ndarray, weights: np.ndarray | None, base: PatchConfig,
                      framing: dict[str, Sensitivity], weight: dict[str, float], scale: float,
                      strengths: tuple[float, ...] = ()) -> list[Option]:
-    """One codebook of ``attr`` trained on the sample, with nearest indices and then ECVQ's at
+    """A codebook of ``attr`` trained on the sample, with nearest indices and then ECVQ's at
     each of ``strengths`` (a bit costs that many times the nearest indices' mean weighted error
     per group): each its index bits and the image MSE its values predict over the framings,
     scaled from the sample to the whole patch. The ECVQ variants compete in the search like any
     other option, so one multiplier picks both the codebook and how hard ECVQ trades."""
-    trained = train_codebook(coded, dim, entries, weights, base, seed)
+    dim = trained.shape[1]
     codebook, idx = final_codebook(attr, coded, trained, weights, 0.0, base.ecvq_iterations,
                                    base.sh_zero_entry)
     zero = base.sh_zero_entry and attr >= PatchAttribute.SH_BAND_1
@@ -320,21 +347,23 @@ def _index_bits(indices: np.ndarray) -> float:
 
 
 def position_options(scene: GaussianCloud, rows: np.ndarray, config: EncoderConfig,
-                     allocation: AllocationConfig, device: str = "auto") -> list[PositionOption]:
+                     allocation: AllocationConfig, device: str = "auto",
+                     reference: dict[str, list[np.ndarray]] | None = None
+                     ) -> list[PositionOption]:
     """Every grid of ``allocation.position_bits`` for the patch Gaussians at ``rows`` of
     ``scene``: the bytes of their positions written at it (one layer, Morton order, the
     configured mode), and the MSE of ``scene`` rendered with them moved to it, against
-    ``scene`` as it is, at :func:`training_framings`. The writer's layers each span their own
-    box, which the real trial writes of a size target measure."""
+    ``scene`` as it is (``reference``: :func:`framing_renders` of it, when already made), at
+    :func:`training_framings`. The writer's layers each span their own box, which the real
+    trial writes of a size target measure."""
     from spcodec.imaging.render import GaussianParams, render_image, resolve_device
 
+    if reference is None:
+        reference = framing_renders(scene, config, allocation, device)
     device = resolve_device(device)
     settings = config.render_settings((0.0, 0.0, 0.0))
     framings = training_framings(scene, config, allocation)
     weight = allocation.framing_weights()
-    original = GaussianParams.from_cloud(scene, device)  # once, not once per camera
-    reference = {name: [render_image(original, c, settings) for c in cameras]
-                 for name, cameras in framings.items()}
     rows = np.asarray(rows, np.int64)
     order = rows[np.argsort(morton_codes(scene.means[rows].astype(np.float64)), kind="stable")]
     out = []
@@ -349,6 +378,18 @@ def position_options(scene: GaussianCloud, rows: np.ndarray, config: EncoderConf
         size = len(zlib.compress(pack_positions(stored)))
         out.append(PositionOption(bits, 8.0 * size / max(len(rows), 1), mse))
     return out
+
+
+def framing_renders(scene: GaussianCloud, config: EncoderConfig, allocation: AllocationConfig,
+                    device: str = "auto") -> dict[str, list[np.ndarray]]:
+    """``scene`` rendered at each of :func:`training_framings`: the reference that rendered
+    options, and a size target's comparison of its candidate files, are measured against."""
+    from spcodec.imaging.render import GaussianParams, render_image, resolve_device
+
+    settings = config.render_settings((0.0, 0.0, 0.0))
+    params = GaussianParams.from_cloud(scene, resolve_device(device))  # once, not per camera
+    return {name: [render_image(params, c, settings) for c in cameras]
+            for name, cameras in training_framings(scene, config, allocation).items()}
 
 
 def training_framings(cloud: GaussianCloud, config: EncoderConfig,

@@ -33,6 +33,7 @@ from spcodec.imaging.sensitivity import Sensitivity
 from .allocation import (
     Allocation,
     PrecisionSearch,
+    framing_renders,
     patch_sensitivity,
     position_options,
     training_framings,
@@ -64,6 +65,10 @@ class Sizing:
         self.original, self.device = original, device
         self.record: dict = {}
         self.sensitivity: dict[str, Sensitivity] | None = None
+        self.sensitivity_of: GaussianCloud | None = None
+        """The cloud :attr:`sensitivity` was taken of."""
+        self.renders: tuple[GaussianCloud, dict[str, list[np.ndarray]]] | None = None
+        """A cloud and its :func:`framing_renders`, the reference of rendered comparisons."""
 
     def plan(self, patch: GaussianCloud, weights: np.ndarray, writer: SceneWriter,
              encoder: PatchEncoder, rows: np.ndarray | None = None) -> int:
@@ -102,7 +107,16 @@ class Sizing:
         """Take over what an earlier sizing of the same scene measured (an encode made again
         without its sketch): the sensitivity of the whole scene, the same renders."""
         if earlier.sensitivity is not None:
-            self.sensitivity = earlier.sensitivity
+            self.sensitivity, self.sensitivity_of = earlier.sensitivity, earlier.sensitivity_of
+        self.renders = earlier.renders
+
+    def reference(self, scene: GaussianCloud) -> dict[str, list[np.ndarray]]:
+        """``scene`` rendered at the search's framings, made once per scene (and shared with a
+        later sizing, :meth:`inherit`)."""
+        if self.renders is None or self.renders[0] is not scene:
+            self.renders = (scene, framing_renders(scene, self.config, self.config.allocation,
+                                                   self.device))
+        return self.renders[1]
 
     def stats(self) -> dict:
         """What was decided, for the encode statistics."""
@@ -115,8 +129,9 @@ class Sizing:
         occludes), taken once per sizing and shared with a later one (:meth:`inherit`)."""
         config = self.config.allocation
         scene = self.original if self.original is not None and rows is not None else patch
-        if self.sensitivity is None or scene is patch:
+        if self.sensitivity is None or self.sensitivity_of is not scene:
             self.sensitivity = patch_sensitivity(scene, self.config, config, self.device)
+            self.sensitivity_of = scene
         framings = self.sensitivity if scene is patch else \
             {name: s.subset(rows) for name, s in self.sensitivity.items()}
         search = PrecisionSearch.measure(patch, framings, encoder.kmeans_weights(weights),
@@ -126,7 +141,7 @@ class Sizing:
         placed = rows if scene is not patch else np.arange(len(patch))
         return search.with_positions(position_options(
             scene, placed, dataclasses.replace(self.config, patch=encoder.config), config,
-            self.device))
+            self.device, self.reference(scene)))
 
 
 class FactorSizing(Sizing):
@@ -152,6 +167,16 @@ class SizeTarget(Sizing):
         self.allocated: PatchConfig | None = None
         self.search: PrecisionSearch | None = None
         self.chosen: Allocation | None = None
+        self.inherited: PrecisionSearch | None = None
+        """The search an earlier size target of the same scene measured (:meth:`inherit`)."""
+
+    def inherit(self, earlier: Sizing) -> None:
+        """Also the earlier target's precision search: re-encoding without the sketch, the
+        patch gains the sketch's Gaussians, and its options are rescaled to them
+        (:meth:`PrecisionSearch.rescaled`) rather than measured again."""
+        super().inherit(earlier)
+        if isinstance(earlier, SizeTarget) and earlier.search is not None:
+            self.inherited = earlier.search
 
     def plan(self, patch: GaussianCloud, weights: np.ndarray, writer: SceneWriter,
              encoder: PatchEncoder, rows: np.ndarray | None = None) -> int:
@@ -190,7 +215,8 @@ class SizeTarget(Sizing):
         (:meth:`_render_psnr`: pruning is no small change, which the model cannot
         predict)."""
         start = time.perf_counter()
-        search = self.precision_search(patch, weights, encoder, rows)
+        search = self.precision_search(patch, weights, encoder, rows) if self.inherited is None \
+            else self.inherited.rescaled(len(patch))
         preset = search.matching(encoder.config.entry_dims, encoder.config.stored_position_bits)
         other = full_bytes - preset.bytes  # positions, headers, the sketch: what stays as it is
         aim = self.target * (1 - FIT_SLACK)
@@ -242,7 +268,7 @@ class SizeTarget(Sizing):
         cameras = [(weight[name], camera) for name, group in
                    training_framings(original, self.config, config).items() for camera in group]
         settings = self.config.render_settings((0.0, 0.0, 0.0))
-        reference = [render_image(original, c, settings) for _, c in cameras]
+        reference = [image for images in self.reference(original).values() for image in images]
         total = sum(w for w, _ in cameras)
         scores = []
         for data in files:

@@ -236,3 +236,50 @@ def test_ecvq_variants_compete_as_options_and_reach_the_patch_config(scene, came
         n: o.bit_cost for n, o in chosen.options.items() if o.bit_cost > 0}
     assert patch.sh_zero_entry == (ecvq.count > 0 and scene.sh_degree > 0)
     assert search.curve()[0].patch_config(FAST).ecvq_bit_costs is None  # nearest: unchanged
+
+
+def test_a_search_rescaled_to_more_gaussians_keeps_bits_and_scales_distortion(search):
+    """rescaled(): what a size target re-encoding without its sketch uses; per-Gaussian bits
+    as measured, each option's distortion (a sum over the patch) in proportion to the count,
+    so the curve's choices at any multiplier are the same options."""
+    bigger = search.rescaled(search.count * 3)
+    assert bigger.count == search.count * 3
+    for name, options in search.options.items():
+        for old, new in zip(options, bigger.options[name]):
+            assert new.key == old.key and new.bytes_for(1) == old.bytes_for(1)
+            assert new.distortion == pytest.approx(3 * old.distortion)
+    for lam in (1e-9, 1e-6, 1e-3):
+        mine = search.at(lam)
+        theirs = bigger.at(lam)
+        assert {o.key for o in theirs.options.values()} == {o.key for o in mine.options.values()}
+    assert search.rescaled(search.count).options == search.options
+
+
+def test_a_sizing_made_again_for_the_same_scene_measures_its_sensitivity_and_renders_once(
+        scene, monkeypatch):
+    """The encode made again without its sketch takes a new sizing of the same scene: it
+    inherits the sensitivity of the whole scene and its reference renders, whose patch is now
+    that scene itself (it used to measure both again)."""
+    from spcodec.encoder import sizing as sizing_module
+    from spcodec.encoder.patch import PatchEncoder
+
+    calls = {"patch_sensitivity": 0, "framing_renders": 0}
+    for name in calls:
+        real = getattr(sizing_module, name)
+
+        def counted(*args, _real=real, _name=name, **kwargs):
+            calls[_name] += 1
+            return _real(*args, **kwargs)
+        monkeypatch.setattr(sizing_module, name, counted)
+    config = dataclasses.replace(_config("balanced", 10**6),
+                                 allocation=dataclasses.replace(SMALL, position_bits=(10, 16)))
+    encoder = PatchEncoder(config.patch, seed=0)
+    weights = np.ones(len(scene))
+    rows = np.arange(0, len(scene), 2)
+    first = sizing_module.SizeTarget(config, scene, "cpu")
+    searched = first.precision_search(scene.subset(rows), weights[rows], encoder, rows)
+    assert [o.bits for o in searched.options["POSITION"]] == [10, 16]
+    again = sizing_module.SizeTarget(config, scene, "cpu")
+    again.inherit(first)
+    again.precision_search(scene, weights, encoder, np.arange(len(scene)))
+    assert calls == {"patch_sensitivity": 1, "framing_renders": 1}

@@ -293,7 +293,7 @@ def sweep(args) -> None:
                                         not args.no_eval),
                                 seconds=seconds, stages=stats["seconds"], peak_mib=peak,
                                 ply=ply_bytes, gaussians=len(decoded),
-                                encoded=str(out) if made else "here",
+                                encoded=out.name if made else "here",
                                 sketch=stats["sketch_gaussians"], reported=stats.get("quality"),
                                 retrain=stats.get("retrain")))
                     done.add((name, method, str(param)))

@@ -311,7 +311,8 @@ def how_small(page: Page, rows: list[dict], curves: list[list[dict]]) -> None:
                 cells.append(missing)
                 continue
             share, best, own_spz = found
-            against = "" if own_spz == spz else f"; its model's SPZ: {measure(own_spz)}"
+            same = own_spz["bytes"] == spz["bytes"]
+            against = "" if same else f"; its model's SPZ: {measure(own_spz)}"
             cells.append(f"**{share:.2f}x**: {size(best)}, {measure(best)} "
                          f"({label(best)}{at_commit(best)}{against})")
         page.add(f"| {scene} | {size(spz)}, {measure(spz)} | {sog_cell} | {cells[0]} | {cells[1]} |")

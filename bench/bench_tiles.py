@@ -34,12 +34,15 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
 from spcodec import GaussianCloud, read_ply, write_ply
+from spcodec.fileio import atomic_write
+from spcodec.ply import ply_bytes
 
-from scenes import CITY_BASES, REAL, city_scene, data_dir, load_scene, tiled_scene  # bench/ on sys.path
+from scenes import CITY_BASES, REAL, city_scene, data_dir, load_scene, tiled_copies  # bench/ on sys.path
 
 
 def make(args: argparse.Namespace) -> None:
@@ -50,7 +53,16 @@ def make(args: argparse.Namespace) -> None:
         print(f"{args.output}: {args.gaussians} Gaussians, a city of {', '.join(CITY_BASES)}")
         return
     base = read_ply(data_dir() / REAL[args.base])
-    write_ply(args.output, tiled_scene(base, args.gaussians, seed=args.seed))
+    header, _ = ply_bytes(base.subset(slice(0, 0)))
+    header = header.replace(b"element vertex 0\n", f"element vertex {args.gaussians}\n".encode())
+
+    def produce(out: BinaryIO) -> None:
+        """Copy after copy: memory holds one copy, not the scene (20 M Gaussians are 5 GB)."""
+        out.write(header)
+        for part in tiled_copies(base, args.gaussians, seed=args.seed):
+            out.write(memoryview(ply_bytes(part)[1]).cast("B"))
+
+    atomic_write(args.output, produce)
     print(f"{args.output}: {args.gaussians} Gaussians from {args.base}")
 
 

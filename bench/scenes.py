@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -42,21 +43,25 @@ def tiled_scene(base: GaussianCloud, n: int, seed: int = 0) -> GaussianCloud:
     are jittered by a quarter of the median nearest-neighbour spacing and its colours slightly, so
     copies are not bit-identical (which would make ties and duplicates unrealistically common).
     """
+    return GaussianCloud.concat(list(tiled_copies(base, n, seed)))
+
+
+def tiled_copies(base: GaussianCloud, n: int, seed: int = 0) -> Iterator[GaussianCloud]:
+    """The copies :func:`tiled_scene` concatenates, one at a time (the last cut to reach ``n``),
+    so a scene larger than memory can be written copy by copy."""
     rng = np.random.default_rng(seed)
     means = base.means.astype(np.float64)
     extent = means.max(axis=0) - means.min(axis=0)
     spacing = float(np.median(cKDTree(means).query(means, k=[2])[0]))
     copies = -(-n // len(base))
     side = int(np.ceil(copies ** (1 / 3)))
-    parts = []
     for k in range(copies):
         cell = np.array([k % side, (k // side) % side, k // (side * side)])
         part = base.subset(slice(None))
         part.means = (means + cell * extent * 1.05
                       + rng.normal(0, 0.25 * spacing, means.shape)).astype(np.float32)
         part.sh_dc = (part.sh_dc + rng.normal(0, 0.01, part.sh_dc.shape)).astype(np.float32)
-        parts.append(part)
-    return GaussianCloud.concat(parts).subset(slice(0, n))
+        yield part.subset(slice(0, n - k * len(base)))
 
 
 CITY_BASES = ("fourth_st", "biker", "guitar", "kacytran")

@@ -15,8 +15,8 @@ from spcodec.cloud import GaussianCloud
 from spcodec.ply import read_ply, write_ply
 from spcodec.synthetic import make_scene
 from spcodec.tiling import TilingConfig, build_tileset
-from spcodec.tiling.grouping import merge_level, pair_groups
-from spcodec.tiling.merge import MAX_OPACITY, ellipsoid_area, fit_opacity, weighted_quantile
+from spcodec.tiling.grouping import APPEARANCE_COST, merge_level, pair_costs, pair_groups, shape_cost
+from spcodec.tiling.merge import MAX_OPACITY, ellipsoid_area, fit_opacity, quat_to_matrix, weighted_quantile
 
 from conftest import load_bench_script, real_file
 
@@ -77,15 +77,75 @@ def test_pairing_reaches_the_count_even_with_duplicate_centres(n, distinct, size
     assert count == -(-n // size) and np.array_equal(np.unique(labels), np.arange(count))
 
 
-def test_two_large_opaque_gaussians_are_not_merged_while_faint_ones_can_be():
-    """Two large opaque Gaussians side by side among faint small ones, halved: fixed groups of
-    neighbours would merge whatever lies together; the pair cost leaves the large two apart."""
-    rng = np.random.default_rng(0)
-    means = np.concatenate([[[0.0, 0.0, 0.0], [0.02, 0.0, 0.0]], rng.normal(0, 0.05, (62, 3))])
-    cloud = cloud_at(means, log_scale=-4.0, opacity=-3.0)
-    cloud.scales[:2], cloud.opacities[:2] = -1.0, 4.0
-    labels, count = pair_groups(cloud, 32)
-    assert count == 32 and labels[0] != labels[1]
+def random_cloud(rng: np.random.Generator, n: int, sh_rest: int = 3) -> GaussianCloud:
+    return GaussianCloud(means=rng.normal(0, 0.3, (n, 3)), scales=rng.uniform(-5, -1, (n, 3)),
+                         quats=rng.normal(size=(n, 4)), opacities=rng.normal(0, 2, n),
+                         sh_dc=rng.normal(0, 0.5, (n, 3)), sh_rest=rng.normal(0, 0.1, (n, sh_rest, 3)))
+
+
+def turn(cloud: GaussianCloud, quat: np.ndarray, factor: float, shift: np.ndarray) -> GaussianCloud:
+    """``cloud`` turned by the unit quaternion ``quat``, scaled by ``factor`` and moved."""
+    w, x, y, z = quat
+    rot = quat_to_matrix(quat[None])[0]
+    a, b = cloud.quats.T, np.array([w, x, y, z])[:, None]
+    composed = np.stack([b[0] * a[0] - b[1] * a[1] - b[2] * a[2] - b[3] * a[3],
+                         b[0] * a[1] + b[1] * a[0] + b[2] * a[3] - b[3] * a[2],
+                         b[0] * a[2] - b[1] * a[3] + b[2] * a[0] + b[3] * a[1],
+                         b[0] * a[3] + b[1] * a[2] - b[2] * a[1] + b[3] * a[0]], axis=1)
+    return GaussianCloud(means=factor * cloud.means @ rot.T + shift,
+                         scales=cloud.scales + np.log(factor), quats=composed,
+                         opacities=cloud.opacities, sh_dc=cloud.sh_dc, sh_rest=cloud.sh_rest)
+
+
+@given(seed=st.integers(0, 2 ** 16), log_factor=st.floats(-4, 4))
+def test_pair_costs_do_not_depend_on_where_the_scene_is_its_turn_or_its_units(seed, log_factor):
+    """The cost is a divergence between shapes plus a colour distance: moving, turning or scaling
+    the whole scene changes neither (the centre-distance cost did scale with the units). Within
+    float32's rounding of the moved centres, in which the costs are computed."""
+    rng = np.random.default_rng(seed)
+    cloud = random_cloud(rng, 40)
+    quat = rng.normal(size=4)
+    moved = turn(cloud, quat / np.linalg.norm(quat), float(np.exp(log_factor)), rng.normal(0, 10, 3))
+    i, j, cost = pair_costs(cloud)
+    i2, j2, cost2 = pair_costs(moved)
+    assert np.array_equal(i, i2) and np.array_equal(j, j2)
+    np.testing.assert_allclose(cost2, cost, rtol=1e-3, atol=1e-3)
+
+
+@given(seed=st.integers(0, 2 ** 16))
+def test_a_gaussian_and_its_copy_cost_nothing_but_their_colour_difference(seed):
+    """The divergence from a Gaussian to itself is 0 (the sigma points are exact there); a
+    difference in any one SH coefficient, a higher one included, costs its square."""
+    rng = np.random.default_rng(seed)
+    pair = random_cloud(rng, 1).subset([0, 0])
+    rot, var = quat_to_matrix(pair.quats), np.exp(2.0 * pair.scales.astype(np.float64))
+    cov = (rot * var[:, None, :]) @ rot.transpose(0, 2, 1)
+    one, two = np.array([0]), np.array([1])
+    assert abs(shape_cost(pair.means.astype(np.float64), rot, var, cov, np.ones(2), one, two)[0]) < 1e-9
+    k = int(rng.integers(0, pair.sh_rest.shape[1]))
+    pair.sh_rest[1, k, 2] += 0.25
+    _, _, cost = pair_costs(pair)
+    assert cost[0] == pytest.approx(APPEARANCE_COST * 0.25 ** 2, abs=1e-4)  # float32
+
+
+def test_two_discs_side_by_side_cost_less_than_two_stacked():
+    """Two flat discs 0.15 apart, once in their plane (one wider disc stands for them) and once
+    along their normal (one Gaussian would have to fill the gap between two sheets): the same
+    centre distance, which is all the earlier cost saw, but very different merges."""
+    flat = np.log([0.1, 0.1, 0.001])
+    side = cloud_at(np.array([[0.0, 0.0, 0.0], [0.15, 0.0, 0.0]]))
+    stacked = cloud_at(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.15]]))
+    side.scales[:], stacked.scales[:] = flat, flat
+    assert 5 * pair_costs(side)[2][0] < pair_costs(stacked)[2][0]
+
+
+def test_a_pair_is_judged_by_its_shape_not_its_size():
+    """A pair of small Gaussians and the same pair ten times larger cost the same: a coarse level
+    is judged at the distance it is drawn from, where both look alike."""
+    rng = np.random.default_rng(5)
+    small = random_cloud(rng, 2)
+    large = turn(small, np.array([1.0, 0, 0, 0]), 10.0, np.zeros(3))
+    assert pair_costs(large)[2][0] == pytest.approx(pair_costs(small)[2][0], rel=1e-4)
 
 
 # ---------------------------------------------------------------------- spatial error

@@ -37,7 +37,7 @@ from .rows import cloud_to_rows, rows_to_cloud
 FAIL_ONCE_ENV = "SPCODEC_TILING_FAIL_ONCE"
 """Test hook: node ids (comma-separated) whose first attempt raises, to exercise retries."""
 
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 """Bumped when a node's content would change for the same input (part of every digest)."""
 
 

@@ -19,7 +19,16 @@ from pathlib import Path
 from spcodec.errors import Interrupted, UsageError
 from spcodec.limits import DEFAULT_LIMITS
 
-from .options import DEVICE_HELP, EXIT_OK, SEED, Bounded, check_device, report_stream
+from .options import (
+    DEVICE_HELP,
+    EXIT_OK,
+    SEED,
+    THREADS_HELP,
+    Bounded,
+    check_device,
+    report_stream,
+    use_threads,
+)
 
 NAME = "encode"
 HELP = "encode a 3DGS PLY into an .spc bitstream"
@@ -28,10 +37,6 @@ CHECKPOINT_EVERY = 500
 """``RunControl.checkpoint_every``, shown by --help (an encode without --checkpoint-every takes
 RunControl's own): it lives in encoder/retraining/control.py, which imports torch, and reading it
 from there would load torch for every command (a test keeps the two equal)."""
-DEFAULT_THREADS = 1
-"""Torch threads for encodes that render or train when --threads is not given: the CPU renderer
-runs many small tensor operations that more threads barely speed up, while two threads on this
-project's busy 2-core machine ran retraining 4-8x slower than one (docs/LOG.md, section 13)."""
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -165,9 +170,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
                    help=DEVICE_HELP)
     p.add_argument("--threads", type=Bounded(int, 1, 1024), default=None, metavar="N",
-                   help="CPU threads for rendering and training: %(type)s (default: "
-                   f"{DEFAULT_THREADS}; the CPU renderer gains little from more and, on a busy "
-                   "2-core machine, ran 4-8x slower with 2)")
+                   help=THREADS_HELP)
     train.add_argument("--checkpoint-every", type=Bounded(int, 0), default=None, metavar="N",
                        help="rewrite the checkpoint OUTPUT.ckpt every N steps, 0 = only when "
                        f"interrupted: %(type)s (default: {CHECKPOINT_EVERY})")
@@ -278,12 +281,10 @@ def run_control(args: argparse.Namespace, retraining: bool):
     checkpoint and the resume hint."""
     import shlex
 
-    import torch
-
     from spcodec.encoder.retraining.control import RunControl
     from spcodec.imaging.training.checkpoint import checkpoint_path
 
-    torch.set_num_threads(args.threads or DEFAULT_THREADS)
+    use_threads(args.threads)
     check_device(args.device)
     if not retraining:
         return RunControl(device=args.device)

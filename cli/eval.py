@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 
 from . import scenes
-from .options import EXIT_OK, Bounded, add_view_options, check_device, closeup_list
+from .options import EXIT_OK, Bounded, add_view_options, check_device, closeup_list, use_threads
 
 NAME = "eval"
 HELP = "measure PSNR/SSIM (and LPIPS when available) against a dataset or a reference"
@@ -64,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
 
     save = check_writable_folder(args.save_renders) if args.save_renders else None
     check_device(args.device)
+    use_threads(args.threads)
     # on stderr (stdout is the report's), for the stages that last over 2 s
     reporter = StageReporter(enabled=not args.quiet, delay=2.0)
     try:

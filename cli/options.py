@@ -71,6 +71,24 @@ UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
 """The values of --up, and the ones an .spc's metadata may store."""
 
 
+DEFAULT_THREADS = 1
+"""Torch threads for the commands that render or train when --threads is not given: the CPU
+renderer runs many small tensor operations that more threads barely speed up, while two threads
+on this project's busy 2-core machine ran retraining 4-8x slower than one (docs/LOG.md, section
+13) and ``eval`` 4x slower (section 21)."""
+THREADS_HELP = (f"CPU threads for rendering (and training): %(type)s (default: {DEFAULT_THREADS}; "
+                "the CPU renderer gains little from more and, on a busy 2-core machine, ran 4-8x "
+                "slower with 2)")
+
+
+def use_threads(threads: int | None) -> None:
+    """Set torch's CPU threads to ``threads``, else :data:`DEFAULT_THREADS` (torch's own default,
+    every core, is what made renders slower)."""
+    import torch
+
+    torch.set_num_threads(threads or DEFAULT_THREADS)
+
+
 def add_view_options(p: argparse.ArgumentParser) -> None:
     """The options of ``eval`` and ``render`` that say how the sampled views are rendered."""
     p.add_argument("--resolution", type=Bounded(int, 8, 8192), default=400, metavar="PIXELS",
@@ -85,6 +103,8 @@ def add_view_options(p: argparse.ArgumentParser) -> None:
                    "a negative axis as --up=-y (default: the one an .spc stores, else -y)")
     p.add_argument("--antialiased", action="store_true",
                    help="render with Mip-Splatting's antialiased opacity (default: off)")
+    p.add_argument("--threads", type=Bounded(int, 1, 1024), default=None, metavar="N",
+                   help=THREADS_HELP)
 
 
 def check_device(device: str) -> None:

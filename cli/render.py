@@ -7,7 +7,7 @@ import argparse
 from spcodec.errors import UsageError
 
 from . import scenes
-from .options import EXIT_OK, Bounded, add_view_options, check_device
+from .options import EXIT_OK, Bounded, add_view_options, check_device, use_threads
 
 NAME = "render"
 HELP = "render a view (or a turntable contact sheet) of an .spc or .ply to a PNG"
@@ -45,6 +45,7 @@ def run(args: argparse.Namespace) -> int:
     check_writable(args.output)
     background = _parse_colour(args.background)
     check_device(args.device)
+    use_threads(args.threads)
     cloud = scenes.load_model(args.input, args.max_layer)
     if len(cloud) == 0:
         raise UsageError(f"{args.input} holds no Gaussians to render")

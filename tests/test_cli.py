@@ -583,3 +583,21 @@ def test_an_encode_runs_one_torch_thread_unless_told(tmp_path):
             assert torch.get_num_threads() == threads
     finally:
         torch.set_num_threads(before)
+
+
+@pytest.mark.parametrize("command", ["render", "eval"])
+def test_render_and_eval_run_one_torch_thread_unless_told(capsys, tmp_path, small_file, command,
+                                                           monkeypatch):
+    """Two threads (torch's default here) made eval 4x slower than one on the busy 2-core
+    machine: render and eval take --threads as encode does, and one thread unless told."""
+    import torch
+
+    spc = tmp_path / "s.spc"
+    spc.write_bytes(small_file)
+    asked = []
+    monkeypatch.setattr(torch, "set_num_threads", asked.append)
+    tail = ["-o", str(tmp_path / "r.png")] if command == "render" else \
+        ["--reference", str(spc), "--closeup-resolution", "16", "--quiet", "--no-cache"]
+    for extra in ([], ["--threads", "3"]):
+        assert run(capsys, command, str(spc), *tail, "--resolution", "16", *extra)[0] == 0
+    assert asked[-2:] == [1, 3]

@@ -12,6 +12,7 @@ codebooks' binary16 entries cost before any clustering).
 
     python bench/bench_budget.py --scenes guitar donut fourth_st biker --preset highrate \\
         --json budget.json
+    python bench/bench_budget.py --scenes fourth_st --target-size 2355982 --json budget.json
 
 Needs the viewer yardstick (``bench/viewer_yardstick.py``: node, Chromium and the shared tool).
 """
@@ -42,16 +43,20 @@ ATTRIBUTES = ("scales", "quats", "opacities", "sh_dc", "sh_rest")
 """The non-position arrays of a cloud, each one row of the budget."""
 
 
-def encode(original: GaussianCloud, preset: str, up: str, antialiased: bool, seed: int):
-    """The no-retrain encode of ``preset`` (the operating point whose budget is wanted)."""
+def encode(original: GaussianCloud, preset: str, up: str, antialiased: bool, seed: int,
+           target_size: int | None = None):
+    """The no-retrain encode of ``preset`` (the operating point whose budget is wanted); with
+    ``target_size``, the file ``spcodec encode --no-retrain --target-size`` writes."""
     from spcodec.encoder.config import EncoderConfig
     from spcodec.encoder.pipeline import encode as run
-    from spcodec.encoder.presets import preset_config
+    from spcodec.encoder.presets import preset_config, sized
     from spcodec.encoder.retraining.control import RunControl
     from spcodec.encoder.stages import silent
 
-    config = dataclasses.replace(preset_config(preset, EncoderConfig(seed=seed)), up=up,
-                                 antialiased=antialiased)
+    config = preset_config(preset, EncoderConfig(seed=seed))
+    if target_size is not None:
+        config = sized(config, target_size)
+    config = dataclasses.replace(config, up=up, antialiased=antialiased)
     return run(original, config, progress=silent, control=RunControl(device="cpu"))
 
 
@@ -62,6 +67,16 @@ def hybrid(original: GaussianCloud, decoded: GaussianCloud, source: np.ndarray, 
     for name in names:
         target = getattr(out, name)
         target[source[rows]] = getattr(decoded, name)[rows]
+    return out
+
+
+def sh_band(original: GaussianCloud, decoded: GaussianCloud, source: np.ndarray,
+            rows: np.ndarray, band: int) -> GaussianCloud:
+    """``original`` with SH band ``band`` (its ``2 band + 1`` coefficients) of the Gaussians
+    ``rows`` (decoded order) as decoded: which band the ``sh_rest`` row's loss is in."""
+    out = original.subset(np.arange(len(original)))
+    coefficients = slice(band * band - 1, (band + 1) ** 2 - 1)
+    out.sh_rest[source[rows], coefficients] = decoded.sh_rest[rows, coefficients]
     return out
 
 
@@ -101,19 +116,21 @@ def variants(original: GaussianCloud, result, decoded: GaussianCloud,
     yield "patch positions", hybrid(original, decoded, source, patch, ("means",))
     for name in ATTRIBUTES:
         yield f"patch {name} (codebooks)", hybrid(original, decoded, source, patch, (name,))
+    for band in range(1, original.sh_degree + 1):
+        yield f"patch SH band {band} (codebooks)", sh_band(original, decoded, source, patch, band)
     yield "float16 rounding of every attribute", float16_attributes(original)
     for bits in grid_bits:
         yield f"positions on a {bits}-bit grid", grid_positions(original, bits)
     yield "the whole file", decoded
 
 
-def budget(name: str, preset: str, cache: Path, seed: int, grid_bits: tuple[int, ...]
-           ) -> list[dict]:
+def budget(name: str, preset: str, cache: Path, seed: int, grid_bits: tuple[int, ...],
+           target_size: int | None = None) -> list[dict]:
     rel, up, antialiased = SCENES[name]
     ply = data_dir() / rel
     original = spcodec.read_ply(ply)
     start = time.perf_counter()
-    result = encode(original, preset, up, antialiased, seed)
+    result = encode(original, preset, up, antialiased, seed, target_size)
     decoded = spcodec.decode(result.data)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -123,7 +140,8 @@ def budget(name: str, preset: str, cache: Path, seed: int, grid_bits: tuple[int,
             seen = viewer_yardstick.two_framings(ply, path, cache, up, antialiased)
             # identical renders have no PSNR: null in the JSON, "=" in the printout
             seen = {k: None if math.isinf(v) else v for k, v in seen.items()}
-            row = dict(scene=name, preset=preset, bytes=len(result.data), quantity=label, **seen)
+            row = dict(scene=name, preset=preset, target_size=target_size, bytes=len(result.data),
+                       quantity=label, **seen)
             shown = {k: "=" if v is None else f"{v:.2f}" for k, v in seen.items()}
             print(f"{name:>10} {label:<42} orbit {shown['orbit']:>6}  close {shown['close']:>6}",
                   flush=True)
@@ -142,13 +160,19 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--grid-bits", type=int, nargs="*", default=[],
                         help="also judge every position on a uniform grid of these many bits")
+    parser.add_argument("--target-size", type=int, default=None,
+                        help="budget the file of this many bytes that --no-retrain --target-size "
+                             "writes (one scene at a time: a size is a scene's own)")
     args = parser.parse_args()
+    if args.target_size is not None and len(args.scenes) != 1:
+        parser.error("--target-size is one scene's size: give one of --scenes")
     reason = viewer_yardstick.missing()
     if reason:
         raise SystemExit(f"bench_budget needs the viewer yardstick: {reason}")
     rows = json.loads(args.json.read_text()) if args.json.exists() else []
     for name in args.scenes:
-        rows += budget(name, args.preset, args.viewer_cache, args.seed, tuple(args.grid_bits))
+        rows += budget(name, args.preset, args.viewer_cache, args.seed, tuple(args.grid_bits),
+                       args.target_size)
         args.json.write_text(json.dumps(rows, indent=2))
 
 

@@ -165,16 +165,19 @@ class PrecisionSearch:
         if config.ecvq_strengths:  # ECVQ can then drop an SH band per Gaussian
             base = dataclasses.replace(base, sh_zero_entry=True)
         options: dict[str, list[Option]] = {}
+        whole = coded_attributes(patch) if len(rows) < n else None
         for index, (attr, coded) in enumerate(coded_attributes(sample).items()):
             options[attr.name] = []
             for dim in LADDERS[attr.name]:
-                distinct = _distinct(coded, dim)  # once per shape: the sort is the cost
-                sizes = sorted({min(c, distinct) for c in config.entry_counts}, reverse=True)
+                sizes = entry_choices(coded, None if whole is None else whole[attr], dim,
+                                      config.entry_counts)
                 books = _codebooks(coded, dim, sizes, sample_weights, base, seed + 7919 * index)
+                exact = sizes[0] if sizes[0] < max(config.entry_counts) else 0
                 for entries in sizes:
+                    asked = entries if entries == exact else len(books[entries])
                     options[attr.name] += _measure_options(
-                        sample, attr, coded, books[entries], sample_weights, base, framing,
-                        weight, scale, config.ecvq_strengths)
+                        sample, attr, coded, books[entries], asked, sample_weights, base,
+                        framing, weight, scale, config.ecvq_strengths)
         return cls(options, n, config)
 
     def rescaled(self, count: int) -> "PrecisionSearch":
@@ -275,19 +278,23 @@ def _codebooks(coded: np.ndarray, dim: int, sizes: list[int], weights: np.ndarra
 
 
 def _measure_options(sample: GaussianCloud, attr: PatchAttribute, coded: np.ndarray,
-                     trained: np.ndarray, weights: np.ndarray | None, base: PatchConfig,
+                     trained: np.ndarray, entries: int, weights: np.ndarray | None,
+                     base: PatchConfig,
                      framing: dict[str, Sensitivity], weight: dict[str, float], scale: float,
                      strengths: tuple[float, ...] = ()) -> list[Option]:
     """A codebook of ``attr`` trained on the sample, with nearest indices and then ECVQ's at
     each of ``strengths`` (a bit costs that many times the nearest indices' mean weighted error
     per group): each its index bits and the image MSE its values predict over the framings,
     scaled from the sample to the whole patch. The ECVQ variants compete in the search like any
-    other option, so one multiplier picks both the codebook and how hard ECVQ trades."""
+    other option, so one multiplier picks both the codebook and how hard ECVQ trades.
+    ``entries`` is the count the encoder asks again on the whole patch: the trained count, or
+    every distinct value of the whole patch where that fits (the sample's codebook then holds
+    only the sample's, :func:`entry_choices`)."""
     dim = trained.shape[1]
     codebook, idx = final_codebook(attr, coded, trained, weights, 0.0, base.ecvq_iterations,
                                    base.sh_zero_entry)
     zero = base.sh_zero_entry and attr >= PatchAttribute.SH_BAND_1
-    out = [_option(sample, attr, codebook, idx, 0.0, framing, weight, scale, zero, len(trained))]
+    out = [_option(sample, attr, codebook, idx, 0.0, framing, weight, scale, zero, entries)]
     if attr is PatchAttribute.ROTATION and dim == 1:
         return out  # scalar rotations keep their own search (final_codebook)
     per_group = _weighted_error(coded, codebook.entries, idx, weights) / max(idx.size, 1)
@@ -297,7 +304,7 @@ def _measure_options(sample: GaussianCloud, attr: PatchAttribute, coded: np.ndar
             book, ecvq_idx = final_codebook(attr, coded, trained, weights, cost,
                                             base.ecvq_iterations, base.sh_zero_entry)
             out.append(_option(sample, attr, book, ecvq_idx, cost, framing, weight, scale, zero,
-                               len(trained)))
+                               entries))
     return out
 
 
@@ -324,6 +331,22 @@ def _weighted_error(coded: np.ndarray, codebook: np.ndarray, indices: np.ndarray
     chosen = codebook.astype(np.float64)[indices].reshape(n, width)
     error = ((coded - chosen) ** 2).sum(axis=1)
     return float(error.sum() if weights is None else (np.asarray(weights) * error).sum())
+
+
+def entry_choices(sample: np.ndarray, whole: np.ndarray | None, dim: int,
+                  counts: tuple[int, ...]) -> list[int]:
+    """Entry counts to measure at ``dim``, largest first: each of ``counts``, capped at the
+    distinct groups of the whole patch (``whole``; the sample when None) when they fit a codebook.
+
+    The cap is counted on the whole patch, not the sample the options are measured on: a scene
+    decoded from an 8-bit format (SPZ) has a few hundred distinct values per attribute, and a
+    sample misses the rare ones (fourth_st: 86 of 92 scales, 153 of 170 colours). Capped at the
+    sample's count, the option looked exact on the sample but merged the rare values in the file,
+    often those of the largest Gaussians (docs/LOG.md 20.9)."""
+    distinct = _distinct(sample, dim)
+    if whole is not None and distinct <= max(counts):  # else the whole patch has more still
+        distinct = _distinct(whole, dim)
+    return sorted({min(c, distinct) for c in counts}, reverse=True)
 
 
 def _distinct(coded: np.ndarray, dim: int) -> int:

@@ -7,6 +7,8 @@ import dataclasses
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import spcodec
 from spcodec.encoder.allocation import PrecisionSearch
@@ -283,3 +285,47 @@ def test_a_sizing_made_again_for_the_same_scene_measures_its_sensitivity_and_ren
     again.inherit(first)
     again.precision_search(scene, weights, encoder, np.arange(len(scene)))
     assert calls == {"patch_sensitivity": 1, "framing_renders": 1}
+
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(2, 300), st.integers(1, 40))
+def test_entry_counts_are_capped_at_the_whole_patchs_distinct_values(seed, levels, rare):
+    """A codebook needs no more entries than the patch has distinct values; the count comes from
+    the whole patch, so the rare values a sample misses still get entries of their own."""
+    from spcodec.encoder.allocation import entry_choices
+
+    rng = np.random.default_rng(seed)
+    common = rng.integers(0, levels, 3000)
+    whole = (np.concatenate([common, levels + np.arange(rare)]) / 16.0 - 10.0)[:, None]
+    sample = whole[:1000]
+    counts = (256, 128, 64, 32, 16)
+    distinct = len(np.unique(whole))
+    choices = entry_choices(sample, whole, 1, counts)
+    assert choices == sorted({min(c, distinct) for c in counts}, reverse=True)
+    assert entry_choices(sample, None, 1, counts)[0] == min(256, len(np.unique(sample)))
+
+
+def test_a_scene_on_a_grid_gets_an_exact_codebook_with_its_rare_values(scene, cameras):
+    """Scales on SPZ's 1/16 grid, the largest few Gaussians on values of their own that the
+    search's sample misses: the search offers the scalar codebook of every distinct value, and a
+    patch encoded with that option decodes every scale exactly."""
+    from spcodec.attributes import PatchAttribute
+    from spcodec.encoder.patch import PatchEncoder, dequantize
+
+    grid = scene.subset(np.arange(len(scene)))
+    grid.scales = np.clip(np.round(grid.scales * 16) / 16, -12.0, -6.0).astype(np.float32)
+    rare = np.arange(len(grid) - 5, len(grid))
+    grid.scales[rare] = (-4.0 + np.arange(5)[:, None] / 16).astype(np.float32)
+    distinct = len(np.unique(grid.scales))
+    render = RenderSettings(background=(0.0, 0.0, 0.0))
+    framings = {"orbit": render_sensitivity(grid, cameras, render)}
+    small = dataclasses.replace(SMALL, sample=len(grid) // 4)
+    search = PrecisionSearch.measure(grid, framings, None, FAST, seed=0, config=small)
+    scalar = [o for o in search.options["SCALE"] if o.entry_dim == 1]
+    exact = max(scalar, key=lambda o: o.entries)
+    assert exact.entries == distinct <= 256
+    allocation = search.matching({"SCALE": 1})
+    assert allocation.options["SCALE"] == exact
+    quantized = PatchEncoder(allocation.patch_config(FAST), seed=0).quantize(grid)
+    assert np.array_equal(dequantize(quantized)[PatchAttribute.SCALE], grid.scales)

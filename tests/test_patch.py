@@ -210,17 +210,44 @@ def test_scaled_rotation_indices_halve_the_angle_error_on_a_real_scene():
 
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.integers(0, 14), st.integers(1, 4000))
-def test_positions_on_a_coarse_power_of_two_grid_are_stored_exactly(seed, exponent, levels):
+def test_positions_on_a_coarse_power_of_two_grid_are_stored_on_it(seed, exponent, levels):
+    """quant16 mode stores grid positions bit for bit; draco mode keeps the smaller of that and
+    Draco on the same grid, which must decode within a sixteenth of the grid's step."""
+    import zlib
+
     from spcodec.encoder.patch import encode_positions
-    from spcodec.sections import PositionMode
+    from spcodec.sections import PositionMode, pack_positions
 
     rng = np.random.default_rng(seed)
     offset = rng.integers(-2000, 2000, 3)
     xyz = ((rng.integers(0, levels + 1, (200, 3)) + offset) * 2.0 ** -exponent).astype(np.float32)
-    for mode in ("draco", "quant16"):
-        stored = encode_positions(xyz, mode, 16)
-        assert stored.mode == PositionMode.QUANT16
+    exact = encode_positions(xyz, "quant16", 16)
+    assert exact.mode == PositionMode.QUANT16
+    assert np.array_equal(exact.decode(), xyz)
+    stored = encode_positions(xyz, "draco", 16)
+    size = len(zlib.compress(pack_positions(stored)))
+    assert size <= len(zlib.compress(pack_positions(exact)))
+    off = np.abs(stored.decode().astype(np.float64) - xyz).max()
+    assert off <= 2.0 ** -exponent / 16
+    if stored.mode == PositionMode.QUANT16:
         assert np.array_equal(stored.decode(), xyz)
+
+
+def test_positions_decoded_from_spz_take_dracos_grid_coder_at_three_quarters_the_bytes():
+    """fourth_st's positions lie on SPZ's 2^-12 grid: Draco on that grid stores them in
+    under 80 % of QUANT16's bytes, and every one decodes within a hundredth of the step."""
+    import zlib
+
+    from spcodec.encoder.patch import encode_positions
+    from spcodec.sections import PositionMode, pack_positions
+
+    xyz = spcodec.read_ply(real_file("pdal_fourth_st_spz/fourth_st_inria.ply")).means
+    xyz = xyz[np.argsort(morton_codes(xyz.astype(np.float64)), kind="stable")]
+    exact, stored = (encode_positions(xyz, mode, 16) for mode in ("quant16", "draco"))
+    assert stored.mode == PositionMode.DRACO
+    sizes = [len(zlib.compress(pack_positions(p))) for p in (stored, exact)]
+    assert sizes[0] < 0.8 * sizes[1]
+    assert np.abs(stored.decode().astype(np.float64) - xyz).max() < 1e-2 * 2.0 ** -12
 
 
 def test_positions_off_any_grid_or_on_a_finer_one_keep_the_configured_coding():

@@ -17,7 +17,7 @@ import pytest
 import spcodec
 from spcodec.cli import main
 
-from viewer_harness import WEB, drive, missing_tools, page_url, serving
+from viewer_harness import WEB, drive, missing_tools, page_url, serving, tile_with_one_thread
 
 pytestmark = pytest.mark.browser
 
@@ -157,21 +157,11 @@ def tileset(tmp_path_factory) -> Path:
     """A tileset (branching 4, two levels below the root) of a synthetic scene, 256 Gaussians
     a leaf: more Gaussians in all than the budget the pages are given."""
     require("playcanvas", "three", "@sparkjsdev/spark")
-    import torch
-
     from spcodec.synthetic import make_scene
-    from spcodec.tiling import TilingConfig, build_tileset
 
     folder = tmp_path_factory.mktemp("loader-tiles")
     spcodec.write_ply(folder / "scene.ply", make_scene(seed=4, curves=4, per_curve=200, blobs=3300).cloud)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        build_tileset(folder / "scene.ply", folder / "tiles",
-                      TilingConfig(leaf_size=256, branching=4, workers=0))
-    finally:
-        torch.set_num_threads(threads)
-    return folder / "tiles"
+    return tile_with_one_thread(folder / "scene.ply", folder / "tiles", leaf_size=256, branching=4)
 
 
 def test_both_loaders_stream_a_tileset_by_view_and_draw_the_same_tiles(tileset, tmp_path):

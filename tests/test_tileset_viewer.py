@@ -23,7 +23,7 @@ import pytest
 import spcodec
 from spcodec.imaging.images import read_image
 
-from viewer_harness import VIEWER_PAGE, drive, missing_tools, serving
+from viewer_harness import VIEWER_PAGE, drive, missing_tools, serving, tile_with_one_thread
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -50,24 +50,14 @@ def require() -> None:
 def tileset(tmp_path_factory) -> Path:
     """A 73-node tileset (branching 8, two levels below the root, 250 Gaussians a node)."""
     require()
-    import torch
-
     from spcodec.synthetic import make_scene
-    from spcodec.tiling import TilingConfig, build_tileset
 
     folder = tmp_path_factory.mktemp("tileset")
     cloud = make_scene(seed=3, curves=10, per_curve=300, blobs=13000, sh_degree=1).cloud
     means = cloud.means.copy()
     means[:, 0] *= STRETCH
     spcodec.write_ply(folder / "street.ply", dataclasses.replace(cloud, means=means))
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        build_tileset(folder / "street.ply", folder / "street",
-                      TilingConfig(leaf_size=256, branching=8, workers=0))
-    finally:
-        torch.set_num_threads(threads)
-    return folder / "street"
+    return tile_with_one_thread(folder / "street.ply", folder / "street", leaf_size=256, branching=8)
 
 
 def tiles_of(index: dict) -> dict[str, dict]:

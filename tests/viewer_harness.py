@@ -101,3 +101,19 @@ def layer_pictures(report: dict) -> list[dict]:
         png = base64.b64decode(entry.pop("png").split(",", 1)[1])
         pictures.append({**entry, "image": read_image(io.BytesIO(png))})  # PIL reads a buffer too
     return pictures
+
+
+def tile_with_one_thread(ply: Path, out: Path, leaf_size: int, branching: int) -> Path:
+    """``ply`` tiled into ``out`` on this process (no workers) at one torch thread, restored
+    after: the browser tests' tilesets, built the way the CPU encodes fastest here."""
+    import torch
+
+    from spcodec.tiling import TilingConfig, build_tileset
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        build_tileset(ply, out, TilingConfig(leaf_size=leaf_size, branching=branching, workers=0))
+    finally:
+        torch.set_num_threads(threads)
+    return out

@@ -32,7 +32,7 @@ SWEEP_ROWS = DOCS / "results" / "rd_sweep.json"
 """The no-retrain curve of one frozen commit (issue 37 item 4): its own table and figures, apart
 from the rows above, which were measured at earlier commits (and lego on another model)."""
 CURVE_ROWS = (SWEEP_ROWS, DOCS / "results" / "rd_donut_curve.json",
-              DOCS / "results" / "rd_retrained.json")
+              DOCS / "results" / "rd_retrained.json", DOCS / "results" / "rd_points.json")
 """Rows measured at later commits than the sweep's (each row names its commit): "how small" takes
 the smallest file of any of them, each judged against its own file's SPZ row, since lego's model
 differs between files."""
@@ -120,29 +120,35 @@ STILL_MISSED = (
     ("Within 0.3 dB of the vanilla model at the paper's ratios (GPU)",
      "missed: 0.38 dB short at 30x, 1.78 at 100x (1000 retraining steps)", "16.1"),
     ("No-retrain `--target-size` at most 0.75x SPZ's bytes and as good",
-     "met on donut (0.64x), kacytran (0.40x) and lego (0.74x); missed on guitar (-1.2 / -1.4 dB "
-     "at 0.73x; -0.5 / -0.75 with ECVQ, off by default), fourth_st (-3.4 / -2.9 at 0.74x) and "
-     "biker against SOG (-4.1 / -4.4 at 0.72x)", "20.6"),
+     "met on donut (0.64x), kacytran (0.40x), lego (0.74x) and fourth_st (0.735x, +0.03 / +0.22 dB "
+     "with exact codebooks and Draco on the input's grid, LOG 21.1); missed on guitar (-1.1 / "
+     "-1.3 dB at 0.747x; ECVQ, off by default, gains about 0.4) and biker against SOG (-4.1 / -4.4 "
+     "at 0.72x)", "20.6"),
     ("No holes: adjacent no-retrain points at most 3 dB apart (orbit)",
-     "met on kacytran; missed on donut, two steps of about 5 dB for 8-9 % more bytes at 0.45x and "
-     "0.55x SPZ, the first filled by the wider precision ladder (35.32 -> 40.24 dB at 0.45x)",
-     "20.8"),
+     "met on kacytran; missed on donut: the first 5 dB step filled by the wider precision ladder "
+     "(35.32 -> 40.24 dB at 0.45x, LOG 20.8), the second is the sketch kept or dropped on a "
+     "linearized prediction, now +4.8 / +3.2 dB at 0.5x -> 0.55x; rendering the sketch's error "
+     "narrows it to 3.0 / 3.5, not committed (LOG 21.1)", "20.8"),
     ("No-retrain `--target-psnr` in seconds to a minute",
-     "missed: about 3 CPU minutes on kacytran (judged at 400 px, the answer at 800); it landed "
-     "at 40.00 dB for a 40 dB target", "20.5"),
+     "missed: 84 CPU s on kacytran (from 106, LOG 21.2; judged at 400 px, the answer at 800); it "
+     "landed at 40.00 dB for a 40 dB target", "20.5"),
     ("Format 1.2 context coding decodes no slower per Gaussian",
      "missed: 8-10 % slower on fourth_st transparent, where 34 columns use contexts", "17.5"),
     ("A 20 M-Gaussian tileset under 4 GB at 1.5x the single-file time per Gaussian",
-     "not run at 20 M; at 2 M a worker peaked at 1 GB and an encoded Gaussian cost as much as in "
-     "a single file", "18"),
+     "memory met as far as it ran (26 of 341 nodes, 1.07 GB over all processes); time missed, "
+     "2.8-4x the single file per Gaussian (extrapolated: extra levels, fixed costs of 78 k "
+     "encodes, the merge)", "21.3"),
     ("No-retrain targeted encode at most 2x the balanced encode's time",
-     "missed: 4.9x on guitar, 8.9x on donut (CPU s; the precision search's measurements)", "20.5"),
+     "missed: 3.2-4.8x on kacytran, donut and guitar (from 4.0-7.9x), 7.3x on fourth_st (CPU s; "
+     "the precision search's renders)", "21.2"),
     ("A prefix within 30 % of the bytes within 3 dB of the whole file",
      "missed, and out of reach at SPZ/4 on guitar and donut", "15.8"),
     ("`spcodec eval --reference` 3x faster with the render cache",
-     "missed: 2.3x warm with the faster binning (1.8x against this run's uncached)", "20.5"),
+     "met for the command as a user runs it, 4.0x (one torch thread by default: 50.1 -> 12.6 s); "
+     "2.5x in CPU s against LOG 17.4's one-thread run", "21.5"),
     ("A tileset's 1/16 level as good as splat-transform's decimation (third-party renderer)",
-     "missed by 0.56 / 0.39 dB on guitar and 1.28 / 0.85 on donut, at 69-78 % of its bytes", "20.2"),
+     "met on donut (+0.02 / +0.37 dB at 78 % of its bytes); guitar 0.06 dB short at the orbit, "
+     "met close up, at 69 % (pairs by a KL shape cost over every SH coefficient)", "21.3"),
     ("Transparent preset smaller than SPZ and as good on biker",
      "missed: biker is SPZ's own output, which SPZ re-encodes exactly", "14.4"),
     ("SOG for fourth_st", "not measured: splat-transform did not finish in 110 CPU minutes", "13.21"),
@@ -319,7 +325,8 @@ def how_small(page: Page, rows: list[dict], curves: list[list[dict]]) -> None:
     page.add(
         "",
         "Without retraining the smallest such files are the precision search's where it was run "
-        "(donut, kacytran; guitar's 0.73x file falls 1.2 / 1.4 dB short) and the transparent "
+        "(donut, kacytran, and fourth_st with exact codebooks and Draco on its input's grid, "
+        f"{page.log('21.1')}; guitar's 0.75x file falls 1.1 / 1.3 dB short) and the transparent "
         "preset's elsewhere (every Gaussian kept, one 256-level scalar codebook per attribute); "
         "retrained files made for a share "
         "of SPZ's bytes reach SPZ's PSNR only where SPZ itself loses much (kacytran, whose SH 3 SPZ "

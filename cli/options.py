@@ -75,7 +75,7 @@ DEFAULT_THREADS = 1
 """Torch threads for the commands that render or train when --threads is not given: the CPU
 renderer runs many small tensor operations that more threads barely speed up, while two threads
 on this project's busy 2-core machine ran retraining 4-8x slower than one (docs/LOG.md, section
-13) and ``eval`` 4x slower (section 21)."""
+13) and ``eval`` 4x slower (section 21.5)."""
 THREADS_HELP = (f"CPU threads for rendering (and training): %(type)s (default: {DEFAULT_THREADS}; "
                 "the CPU renderer gains little from more and, on a busy 2-core machine, ran 4-8x "
                 "slower with 2)")

@@ -342,7 +342,7 @@ def entry_choices(sample: np.ndarray, whole: np.ndarray | None, dim: int,
     decoded from an 8-bit format (SPZ) has a few hundred distinct values per attribute, and a
     sample misses the rare ones (fourth_st: 86 of 92 scales, 153 of 170 colours). Capped at the
     sample's count, the option looked exact on the sample but merged the rare values in the file,
-    often those of the largest Gaussians (docs/LOG.md 20.9)."""
+    often those of the largest Gaussians (docs/LOG.md 21.1)."""
     distinct = _distinct(sample, dim)
     if whole is not None and distinct <= max(counts):  # else the whole patch has more still
         distinct = _distinct(whole, dim)

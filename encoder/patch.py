@@ -120,7 +120,7 @@ def on_input_grid(xyz: np.ndarray, steps: np.ndarray, mode: str) -> PatchPositio
     stored section kept: on fourth_st it takes 232 kB where QUANT16 takes 311 kB, a quarter of
     the positions' bytes, and decodes at most 4.4e-7 off (Draco dequantizes in binary32: under a
     hundredth of the grid's step, yet 0.2-0.45 dB in the viewer at fourth_st's transparent point,
-    where co-located Gaussians of different layers then sort differently, docs/LOG.md 20.9)."""
+    where co-located Gaussians of different layers then sort differently, docs/LOG.md 21.1)."""
     xyz64 = np.asarray(xyz, np.float64)
     exact = PatchPositions.quant16(xyz, steps, xyz64.min(axis=0))
     if mode != "draco" or not np.all(steps == steps[0]):

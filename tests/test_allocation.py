@@ -329,3 +329,18 @@ def test_a_scene_on_a_grid_gets_an_exact_codebook_with_its_rare_values(scene, ca
     assert allocation.options["SCALE"] == exact
     quantized = PatchEncoder(allocation.patch_config(FAST), seed=0).quantize(grid)
     assert np.array_equal(dequantize(quantized)[PatchAttribute.SCALE], grid.scales)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 6), st.integers(1, 40), st.integers(1, 300))
+def test_distinct_groups_count_as_float16_rows_do(seed, dim, groups, levels):
+    """The packed count of distinct groups is np.unique's over float16 rows, signed zeros and
+    values that differ only beyond float16 included."""
+    from spcodec.encoder.allocation import _distinct
+
+    rng = np.random.default_rng(seed)
+    coded = (rng.integers(0, levels, (50, groups * dim)) / 7.0 - 1.0).astype(np.float32)
+    coded[rng.random(coded.shape) < 0.2] = -0.0
+    coded[rng.random(coded.shape) < 0.1] += 1e-6  # the same float16, another float32
+    expected = len(np.unique(coded.reshape(-1, dim).astype(np.float16), axis=0))
+    assert _distinct(coded, dim) == expected

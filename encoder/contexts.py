@@ -18,12 +18,12 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from spcodec.codecs import compress
 from spcodec.container import Codec
 from spcodec.index_contexts import IndexContext, pack_contexts, rank_table, to_ranks
 from spcodec.sections import Codebook, codebook_columns, pack_indices
 from spcodec.writer import PatchLayer
 
+from . import compressions
 from .refine import default_jobs
 
 TOC_ENTRY_BYTES = 40
@@ -119,7 +119,7 @@ def _column_bytes(data: bytes, codec: Codec, level: int | None) -> int:
             deflater = zlib.compressobj(level, zlib.DEFLATED, 15, 9, strategy)
             sizes.append(len(deflater.compress(data)) + len(deflater.flush()))
         return min(sizes)
-    return len(compress(codec, data, level))
+    return len(compressions.RECENT(codec, data, level))
 
 
 def _measured_gain(per_layer: list[np.ndarray], record: IndexContext, codec: Codec,
@@ -137,13 +137,15 @@ def _measured_gain(per_layer: list[np.ndarray], record: IndexContext, codec: Cod
 def _shrinks_file(per_layer: list[np.ndarray], chosen: list[IndexContext], codec: Codec,
                   level: int | None, pool: ThreadPoolExecutor) -> bool:
     """Whether the index sections with ``chosen`` plus the contexts section and its table entry
-    are smaller than the index sections without, each compressed as the writer compresses it."""
+    are smaller than the index sections without, each compressed as the writer compresses it,
+    through the encoder's memory of compressions (:mod:`.compressions`): the writer then finds
+    the chosen sections there instead of compressing them again."""
     def stored(columns: np.ndarray) -> int:
         raw = columns.tobytes()
-        return min(len(compress(codec, raw, level, columns.shape[1])), len(raw))
+        return min(len(compressions.RECENT(codec, raw, level, columns.shape[1])), len(raw))
 
     sizes = list(pool.map(stored, per_layer + [to_ranks(c, chosen) for c in per_layer]))
     without, with_contexts = sum(sizes[:len(per_layer)]), sum(sizes[len(per_layer):])
     table = pack_contexts(chosen)
-    extra = min(len(compress(codec, table, level)), len(table)) + TOC_ENTRY_BYTES
+    extra = min(len(compressions.RECENT(codec, table, level)), len(table)) + TOC_ENTRY_BYTES
     return with_contexts + extra < without

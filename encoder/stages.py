@@ -18,7 +18,7 @@ from spcodec.cloud import GaussianCloud
 from spcodec.decoder import decode_layers
 from spcodec.writer import EncodedScene, WriteOptions, WrittenFile, write_file
 
-from .compressions import RECENT
+from . import compressions
 from .config import EncoderConfig
 from .patch import PatchEncoding
 from .statistics import RetrainStats, SketchStats
@@ -114,7 +114,7 @@ class SceneWriter:
     def write_file(self, patch: PatchEncoding | None) -> WrittenFile:
         """The file and its layout (section and layer extents), which trial files are judged
         by without reading them back."""
-        return write_file(self.scene(patch), self.options, compressor=RECENT)
+        return write_file(self.scene(patch), self.options, compressor=compressions.RECENT)
 
     def with_prefix_psnr(self, prefix_psnr: list[dict] | None) -> SceneWriter:
         """This writer with the file's per-prefix PSNR on the training views in its metadata

@@ -288,17 +288,21 @@ def test_the_encoding_chooses_once_per_codec_and_only_when_asked():
 def test_the_writer_reuses_the_index_sections_the_check_compressed(monkeypatch):
     """The "does the file shrink" check compresses every index section with the chosen
     contexts exactly as the writer does: writing the file then compresses none of them again."""
-    from spcodec import codecs
+    from spcodec.encoder import compressions
+    from spcodec.writer import write_file
 
+    monkeypatch.setattr(compressions, "RECENT", compressions.RecentCompressions(64 << 20))
     scene = _correlated_scene(5, 6000, 2)
     contexts = choose_index_contexts(scene.codebooks, scene.patch_layers, Codec.ZLIB)
     assert contexts
     compressed = []
-    real = codecs._compress
-    monkeypatch.setattr(codecs, "_compress",
+    real = compressions.compress
+    monkeypatch.setattr(compressions, "compress",
                         lambda codec, raw, *a: compressed.append(bytes(raw)) or real(codec, raw, *a))
     sections, _ = scene_sections(dataclasses.replace(scene, index_contexts=contexts))
-    data = build_bitstream(dataclasses.replace(scene, index_contexts=contexts))
+    data = write_file(dataclasses.replace(scene, index_contexts=contexts),
+                      compressor=compressions.RECENT).data  # as the encoder's writer does
     indices = [s.raw for s in sections if s.type == SectionType.PATCH_ATTRIBUTES]
+    assert compressed, "the other sections were compressed"
     assert len(indices) == 2 and not any(raw in compressed for raw in indices)
     assert _same(spcodec.decode(data), spcodec.decode(build_bitstream(scene)))

@@ -162,26 +162,17 @@ class _LadderSampled:
         self.points: np.ndarray | None = None
 
     def first(self, k: int, init_samples: int, iterations: int, seed: int) -> np.ndarray:
-        self.points, self.mass, centres = _kmeans_sampled(
-            self.groups, self.weights, k, self.rng, self.samples, init_samples, iterations, seed,
-            keep_sample=True)
-        return centres
+        """``k`` centres as :func:`_kmeans_sampled` trains them, keeping its sample."""
+        self.points, self.mass = _weighted_sample(self.groups, self.weights, k, self.rng,
+                                                  self.samples)
+        return self.fresh(k, init_samples, iterations, seed)
 
     def fresh(self, k: int, init_samples: int, iterations: int, seed: int) -> np.ndarray:
         """``k`` centres trained from k-means++ seeds on the same sample."""
-        from sklearn.cluster import KMeans, kmeans_plusplus
-        from threadpoolctl import threadpool_limits
-
         if len(self.points) <= k:
             return self.points
-        sub = np.sort(self.rng.choice(len(self.points), min(init_samples, len(self.points)),
-                                      replace=False))
-        with threadpool_limits(limits=1, user_api="blas"):
-            init, _ = kmeans_plusplus(self.points[sub], k, sample_weight=self.mass[sub],
-                                      random_state=seed)
-        km = KMeans(n_clusters=k, init=init, n_init=1, max_iter=iterations, random_state=seed)
-        km.fit(self.points, sample_weight=self.mass)
-        return km.cluster_centers_
+        return _kmeans_plusplus_fit(self.points, self.mass, k, self.rng, init_samples,
+                                    iterations, seed)
 
     def smaller(self, centres: np.ndarray, size: int, iterations: int, seed: int) -> np.ndarray:
         """``size`` centres from ``centres`` merged by the sample mass each holds, then
@@ -264,15 +255,8 @@ def _unique_rows(rows: np.ndarray) -> np.ndarray:
 def _kmeans_1d(values: np.ndarray, weights: np.ndarray, k: int, rng: np.random.Generator
                ) -> np.ndarray:
     """Weighted Lloyd iterations in one dimension to convergence (see the module docstring)."""
-    distinct, inverse = np.unique(values.astype(np.float16).astype(np.float64),
-                                  return_inverse=True)
-    mass = np.bincount(inverse.ravel(), weights=weights, minlength=len(distinct))
-    centres = np.sort(_greedy_seeds_1d(distinct, mass, k, rng))
-    order = np.argsort(values, kind="stable")
-    x, w = values[order], weights[order]
-    cum_w = np.concatenate([[0.0], np.cumsum(w)])
-    cum_wx = np.concatenate([[0.0], np.cumsum(w * x)])
-    return _lloyd_1d(centres, x, cum_w, cum_wx)
+    scalar = _Sorted1d(values, weights)
+    return scalar.lloyd(_greedy_seeds_1d(scalar.distinct, scalar.mass, k, rng))
 
 
 def _lloyd_1d(centres: np.ndarray, x: np.ndarray, cum_w: np.ndarray, cum_wx: np.ndarray
@@ -311,25 +295,34 @@ def _greedy_seeds_1d(points: np.ndarray, mass: np.ndarray, k: int, rng: np.rando
 
 
 def _kmeans_sampled(groups: np.ndarray, weights: np.ndarray, k: int, rng: np.random.Generator,
-                    samples: int, init_samples: int, iterations: int, seed: int,
-                    keep_sample: bool = False):
-    """k-means on a weight-proportional sample (see the module docstring): its centres, or with
-    ``keep_sample`` (points, mass, centres), the sample for :func:`codebook_ladder` to reuse."""
-    from sklearn.cluster import KMeans, kmeans_plusplus
-    from threadpoolctl import threadpool_limits
+                    samples: int, init_samples: int, iterations: int, seed: int) -> np.ndarray:
+    """k-means on a weight-proportional sample (see the module docstring)."""
+    points, mass = _weighted_sample(groups, weights, k, rng, samples)
+    return points if len(points) <= k else \
+        _kmeans_plusplus_fit(points, mass, k, rng, init_samples, iterations, seed)
 
+
+def _weighted_sample(groups: np.ndarray, weights: np.ndarray, k: int, rng: np.random.Generator,
+                     samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """``samples`` draws in proportion to weight, as (distinct groups drawn, times drawn)."""
     drawn = rng.choice(len(groups), samples, replace=True, p=weights / weights.sum())
     rows, counts = np.unique(drawn, return_counts=True)
     if len(rows) < 4 * k:  # weight on too few groups to place k entries: add a uniform sample
         extra = rng.choice(len(groups), min(len(groups), samples), replace=False)
         rows = np.unique(np.concatenate([rows, extra]))
         counts = np.bincount(drawn, minlength=len(groups))[rows] + 1.0
-    points, mass = groups[rows], counts.astype(np.float64)
-    if len(points) <= k:
-        return (points, mass, points) if keep_sample else points
+    return groups[rows], counts.astype(np.float64)
+
+
+def _kmeans_plusplus_fit(points: np.ndarray, mass: np.ndarray, k: int, rng: np.random.Generator,
+                         init_samples: int, iterations: int, seed: int) -> np.ndarray:
+    """``k`` centres of weighted ``points``: k-means++ seeds from a subsample, then Lloyd."""
+    from sklearn.cluster import KMeans, kmeans_plusplus
+    from threadpoolctl import threadpool_limits
+
     sub = np.sort(rng.choice(len(points), min(init_samples, len(points)), replace=False))
     with threadpool_limits(limits=1, user_api="blas"):  # its many small products: threads stall
         init, _ = kmeans_plusplus(points[sub], k, sample_weight=mass[sub], random_state=seed)
     km = KMeans(n_clusters=k, init=init, n_init=1, max_iter=iterations, random_state=seed)
     km.fit(points, sample_weight=mass)
-    return (points, mass, km.cluster_centers_) if keep_sample else km.cluster_centers_
+    return km.cluster_centers_

@@ -77,6 +77,11 @@ class RunEstimate:
     def total(self) -> float:
         return self.targets + self.training + (self.evaluation or 0.0)
 
+    def seconds(self) -> dict:
+        """Each stage's seconds and the total, as statistics record them."""
+        return {"targets": self.targets, "training": self.training,
+                "evaluation": self.evaluation, "total": self.total}
+
     def corrected(self, step: float) -> "RunEstimate":
         """The estimate with ``step`` seconds per training step (as the first steps measure)."""
         return replace(self, training=self.steps * step + self.fixed, step=step)

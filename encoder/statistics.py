@@ -80,6 +80,9 @@ class RetrainStats:
     finish_seconds: float | None = None
     prefix_psnr: list[dict] | None = None
     """``{"layer": K, "psnr": dB}`` per file prefix that ends at a non-empty layer."""
+    estimate: dict | None = None
+    """The run's first estimate in seconds (``targets``, ``training``, ``evaluation``,
+    ``total``), kept so that a benchmark can compare it with the stages' measured seconds."""
 
     @property
     def finish_gain(self) -> float:
@@ -104,7 +107,7 @@ class RetrainStats:
             retrain_seconds=self.retrain_seconds, psnr_retrained=self.psnr_retrained,
             fitted_when_snapping=fitted, psnr_quantized=self.psnr_quantized,
             psnr_finished=self.psnr_finished, finish_seconds=self.finish_seconds,
-            prefix_psnr=self.prefix_psnr or None)
+            prefix_psnr=self.prefix_psnr or None, estimate=self.estimate)
 
 
 @dataclass

@@ -34,7 +34,7 @@ SKETCH = ["clusters_found", "clusters_accepted", "clusters_encoded", "draco_step
           "duplicates", "rejected_clusters", "rejected_gaussians", "refine",
           "moved_to_patch_for_share"]
 RETRAIN = ["prune", "psnr_before", "retrain_seconds", "psnr_retrained", "psnr_quantized",
-           "psnr_finished", "finish_seconds", "prefix_psnr"]
+           "psnr_finished", "finish_seconds", "prefix_psnr", "estimate"]
 
 
 @pytest.fixture(scope="module")
@@ -99,6 +99,8 @@ def test_a_retrained_encode_keeps_its_retraining_and_evaluation_keys(scene):
     retrain = doc["retrain"]
     assert [key for key in retrain if key not in ("psnr_snapped", "snap")] == RETRAIN
     assert retrain["psnr_finished"] == result.stats.retrain.psnr_finished
+    assert list(retrain["estimate"]) == ["targets", "training", "evaluation", "total"]
+    assert retrain["estimate"]["evaluation"] is None  # evaluate=False: no evaluation estimated
     assert doc["evaluation"] == {"skipped": True, "eval_options": []}
     _check_counts(doc, result.data)
 
@@ -113,6 +115,9 @@ _OPTIONAL = {
     "finish_seconds": st.floats(0, 1e4),
     "prefix_psnr": st.lists(st.fixed_dictionaries({"layer": st.integers(1, 8),
                                                     "psnr": st.floats(0, 60)}), min_size=1),
+    "estimate": st.fixed_dictionaries({"targets": st.floats(0, 1e4), "training": st.floats(0, 1e4),
+                                       "evaluation": st.none() | st.floats(0, 1e4),
+                                       "total": st.floats(0, 1e4)}),
 }
 
 

@@ -63,6 +63,9 @@ def test_the_first_line_estimates_every_stage_and_training_corrects_it(capsys, m
     assert len(corrected) == 1 and "the rest of the encode takes about " in corrected[0]
     stats = json.loads((tmp_path / "s.json").read_text())
     assert stats["seconds"]["estimate"] < stats["seconds"]["retrain"] + stats["seconds"]["targets"]
+    estimate = stats["retrain"]["estimate"]  # what bench_rd records beside the measured seconds
+    assert estimate["total"] == pytest.approx(estimate["targets"] + estimate["training"])
+    assert estimate["evaluation"] is None and estimate["training"] > 0
 
 
 def test_the_line_names_the_evaluation_and_the_faster_ways():

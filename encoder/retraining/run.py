@@ -76,7 +76,7 @@ def retrain_patch(run: RetrainRun, patch: GaussianCloud, kept: np.ndarray, weigh
     """Retrain the survivors ``kept`` of ``patch`` (ranked by ``weights``) and encode them as the
     file's patch layers, as many as ``run.sizing`` lets through."""
     retrain = run.config.retrain
-    train_stats = RetrainStats(retrain.prune)
+    train_stats = RetrainStats(retrain.prune, estimate=run.estimate.seconds())
     encoder, nested = run.encoder, None
     if retrain.nested:  # every step trains one layer prefix (:mod:`.nested`)
         nested, order = NestedLayers.plan(weights, encoder, run.config.seed,

@@ -116,7 +116,8 @@ def describe_error(exc: BaseException, args: argparse.Namespace | None = None) -
 def missing_extra_message(module: str) -> str:
     """Which extra installs a missing module."""
     extra = {"torch": "encoder", "sklearn": "encoder", "scipy": "encoder", "tqdm": "encoder",
-             "zstandard": "zstd", "gsplat": "gsplat"}.get(module.split(".")[0])
+             "zstandard": "zstd", "gsplat": "gsplat", "dask": "tiling",
+             "distributed": "tiling"}.get(module.split(".")[0])
     if extra:
         return f"this command needs '{module}': pip install 'spcodec[{extra}]'"
     return f"missing Python module '{module}'"

@@ -1,13 +1,24 @@
-"""``spcodec render``: one sampled view, or a turntable contact sheet, of a scene to a PNG."""
+"""``spcodec render``: one sampled view, or a turntable contact sheet, of a scene to a PNG.
+
+A contact sheet of many views of a large scene takes tens of seconds on a CPU, so the views are
+one progress stage (on stderr, shown only once it has run 2 s, as ``eval``'s are)."""
 
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 from spcodec.errors import UsageError
 
 from . import scenes
 from .options import EXIT_OK, Bounded, add_view_options, check_device, use_threads
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from spcodec.encoder.progress import StageReporter
+    from spcodec.imaging.cameras import Camera
+    from spcodec.imaging.render import GaussianParams, RenderSettings
 
 NAME = "render"
 HELP = "render a view (or a turntable contact sheet) of an .spc or .ply to a PNG"
@@ -30,13 +41,16 @@ def configure(p: argparse.ArgumentParser) -> None:
                    "(default: one view)")
     p.add_argument("--background", default="0,0,0",
                    help="r,g,b, each in [0, 1] (default: %(default)s)")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress display on stderr (default: off)")
     add_view_options(p)
 
 
 def run(args: argparse.Namespace) -> int:
+    from spcodec.encoder.progress import StageReporter
     from spcodec.fileio import check_writable
     from spcodec.imaging.images import contact_sheet, write_png
-    from spcodec.imaging.render import GaussianParams, RenderSettings, render_image, resolve_device
+    from spcodec.imaging.render import GaussianParams, RenderSettings, resolve_device
     from spcodec.imaging.views import sample_views
 
     if args.turntable is None and args.view >= args.views:
@@ -54,13 +68,33 @@ def run(args: argparse.Namespace) -> int:
                            split="eval", up=scenes.view_up(args.up, args.input))
     settings = RenderSettings(background=background, antialiased=args.antialiased)
     params = GaussianParams.from_cloud(cloud, resolve_device(args.device))
-    if args.turntable:
-        image = contact_sheet([render_image(params, cam, settings) for cam in cameras])
-    else:
-        image = render_image(params, cameras[args.view], settings)
+    shots = cameras if args.turntable else [cameras[args.view]]
+    images = _render_all(params, shots, settings, StageReporter(enabled=not args.quiet, delay=2.0))
+    image = contact_sheet(images) if args.turntable else images[0]
     write_png(args.output, image)
     print(f"wrote {args.output} ({image.shape[1]}x{image.shape[0]})")
     return EXIT_OK
+
+
+def _render_all(params: GaussianParams, cameras: list[Camera], settings: RenderSettings,
+                reporter: StageReporter) -> list[np.ndarray]:
+    """Render every camera as one progress stage; an error or Ctrl-C ends the stage's line first,
+    so the one-line error is not glued to a progress bar."""
+    from spcodec.imaging.render import render_image
+
+    first = cameras[0]
+    stage = reporter.stage(f"render {len(cameras)} view{'s' if len(cameras) > 1 else ''} of "
+                           f"{first.width}x{first.height}", len(cameras))
+    try:
+        images = []
+        for camera in cameras:
+            images.append(render_image(params, camera, settings))
+            stage.update()
+    except BaseException:
+        reporter.interrupt()
+        raise
+    stage.done(f"{len(images)} rendered")
+    return images
 
 
 def _parse_colour(text: str) -> tuple[float, float, float]:

@@ -88,6 +88,10 @@ def test_a_missing_extra_is_named_in_one_line():
     message = describe_error(ModuleNotFoundError("No module named 'torch'", name="torch"))
     assert message == "this command needs 'torch': pip install 'spcodec[encoder]'"
     assert "zstd" in describe_error(ModuleNotFoundError("x", name="zstandard"))
+    # `spcodec tile` runs its nodes on Dask (extra `tiling`), imported only once the nodes run
+    for module in ("dask", "dask.distributed", "distributed"):
+        assert describe_error(ModuleNotFoundError("x", name=module)) == \
+            f"this command needs '{module}': pip install 'spcodec[tiling]'"
 
 
 def test_encoder_api_is_reachable_without_loading_heavy_modules_eagerly():

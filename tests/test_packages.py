@@ -16,6 +16,7 @@ import subprocess
 import sys
 import urllib.parse
 import urllib.request
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -36,17 +37,35 @@ def run(*args, cwd=None, env=None, timeout=900) -> subprocess.CompletedProcess:
 
 
 @pytest.fixture(scope="module")
-def venv(tmp_path_factory) -> Path:
-    """A fresh virtual environment with the wheel of this checkout and its encoder extra."""
+def wheel(tmp_path_factory) -> Path:
+    """The wheel of this checkout, as ``pip wheel .`` builds it."""
     work = tmp_path_factory.mktemp("wheel")
     run(sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", work, REPO, timeout=1200)
-    wheel = next(work.glob("spcodec-*.whl"))
-    env_dir = work / "venv"
+    return next(work.glob("spcodec-*.whl"))
+
+
+@pytest.fixture(scope="module")
+def venv(wheel, tmp_path_factory) -> Path:
+    """A fresh virtual environment with the wheel of this checkout and its encoder extra."""
+    env_dir = tmp_path_factory.mktemp("venv") / "venv"
     run(sys.executable, "-m", "venv", env_dir)
     pip = env_dir / "bin" / "pip"
     run(pip, "install", "-q", "torch==2.13.0", timeout=1200)  # the local CPU build, first
     run(pip, "install", "-q", f"{wheel}[encoder]", timeout=1200)
     return env_dir
+
+
+def test_the_wheel_carries_the_licence_text_and_names_it(wheel):
+    """The licence travels with the wheel (PEP 639: a copy under the dist-info, named in the
+    metadata), the same text as the repository's and the npm package's (tests/test_licence.py)."""
+    with zipfile.ZipFile(wheel) as archive:
+        info = next(n for n in archive.namelist() if n.endswith(".dist-info/METADATA"))
+        folder = info.rsplit("/", 1)[0]
+        metadata = archive.read(info).decode()
+        shipped = archive.read(f"{folder}/licenses/LICENSE")
+    assert "License-Expression: Apache-2.0" in metadata.splitlines()
+    assert "License-File: LICENSE" in metadata.splitlines()
+    assert shipped == (REPO / "LICENSE").read_bytes()
 
 
 def test_the_wheel_runs_the_demo_and_its_own_conformance_suite(venv, tmp_path):

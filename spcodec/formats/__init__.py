@@ -17,6 +17,14 @@ line that says what it looks like instead (an image, text, a gzip or zip archive
 Like Pillow's plugins, a new format is a module plus one :func:`register` call at the bottom of
 this file. Everything here is numpy and the standard library; SPZ v4 needs ``zstandard`` and SOG
 needs Pillow (extra ``formats``), imported only when such a file is read.
+
+Why these readers are written here rather than taken from PyPI: ``gaussforge`` (0.6.0, compiled)
+reads all of these formats, but by a format name the caller gives, and on the fixtures that the
+formats' own tools wrote (tests/data/formats) it refused the ``.splat``, put the positions of
+compressed ``.ksplat`` files units away from the source and returned SPZ in SPZ's own axes;
+``gsply`` (0.4.6) reads PLY, SPZ and SOG only and brings numba. The modules here follow each
+format's published source, are checked against those tools' files, and keep the format layer on
+numpy.
 """
 
 from __future__ import annotations

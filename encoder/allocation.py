@@ -33,6 +33,7 @@ from spcodec.decoder.layers import fill_patch_attributes
 from spcodec.imaging.sensitivity import Sensitivity
 from spcodec.sections import Codebook, pack_positions
 
+from .codebook_fits import digest
 from .config import AllocationConfig, EncoderConfig, PatchConfig
 from .kmeans import codebook_ladder
 from .morton import morton_codes
@@ -399,16 +400,22 @@ def position_options(scene: GaussianCloud, rows: np.ndarray, config: EncoderConf
     rows = np.asarray(rows, np.int64)
     order = rows[np.argsort(morton_codes(scene.means[rows].astype(np.float64)), kind="stable")]
     out = []
+    rendered: dict[bytes, float] = {}  # the MSE of each distinct set of decoded positions
     for bits in allocation.position_bits:
         stored = encode_positions(scene.means[order], config.patch.position_mode, bits)
-        moved = scene.subset(np.arange(len(scene)))
-        moved.means[order] = stored.decode()
-        params = GaussianParams.from_cloud(moved, device)
-        mse = sum(weight.get(name, 1.0) * float(np.mean(
-            [np.mean((render_image(params, c, settings) - r) ** 2)
-             for c, r in zip(framings[name], reference[name])])) for name in framings)
+        decoded = stored.decode()
+        # positions already on a coarser grid are stored on it whatever the bits asked
+        # (:func:`.patch.input_grid`): those grids decode alike and render alike
+        key = digest(decoded)
+        if key not in rendered:
+            moved = scene.subset(np.arange(len(scene)))
+            moved.means[order] = decoded
+            params = GaussianParams.from_cloud(moved, device)
+            rendered[key] = sum(weight.get(name, 1.0) * float(np.mean(
+                [np.mean((render_image(params, c, settings) - r) ** 2)
+                 for c, r in zip(framings[name], reference[name])])) for name in framings)
         size = len(zlib.compress(pack_positions(stored)))
-        out.append(PositionOption(bits, 8.0 * size / max(len(rows), 1), mse))
+        out.append(PositionOption(bits, 8.0 * size / max(len(rows), 1), rendered[key]))
     return out
 
 

@@ -13,7 +13,9 @@ so contexts never make a file larger.
 
 from __future__ import annotations
 
+import threading
 import zlib
+from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -24,6 +26,7 @@ from spcodec.sections import Codebook, codebook_columns, pack_indices
 from spcodec.writer import PatchLayer
 
 from . import compressions
+from .codebook_fits import digest
 from .refine import default_jobs
 
 TOC_ENTRY_BYTES = 40
@@ -31,6 +34,54 @@ TOC_ENTRY_BYTES = 40
 
 MIN_ESTIMATED_GAIN = 64
 """Bytes the entropy estimate must promise before a candidate is compressed for real."""
+
+
+class RecentChoices:
+    """The context choices of recent files, keyed by the content of the columns they read (the
+    last :attr:`max_entries`, least recently used out first); thread-safe.
+
+    A size target writes the same patch at several precisions, each trial changing only some
+    attributes' columns, and the file it keeps repeats one trial: a column's choice, and a
+    whole file's, are deterministic for its columns, codec and level, so they are made once."""
+
+    def __init__(self, max_entries: int) -> None:
+        self.max_entries = max_entries
+        self.entries: OrderedDict[tuple, object] = OrderedDict()
+        self.lock = threading.Lock()
+
+    def get(self, key: tuple):
+        """The choice stored under ``key`` (None: none)."""
+        with self.lock:
+            if key not in self.entries:
+                return None
+            self.entries.move_to_end(key)
+            return self.entries[key]
+
+    def put(self, key: tuple, value) -> None:
+        with self.lock:
+            self.entries[key] = value
+            self.entries.move_to_end(key)
+            while len(self.entries) > self.max_entries:
+                self.entries.popitem(last=False)
+
+    def get_or_make(self, key: tuple, make):
+        """The choice under ``key``, made by ``make()`` (and kept) when there is none; a choice
+        of None is kept too."""
+        with self.lock:
+            if key in self.entries:
+                self.entries.move_to_end(key)
+                return self.entries[key]
+        value = make()
+        self.put(key, value)
+        return value
+
+    def clear(self) -> None:
+        with self.lock:
+            self.entries.clear()
+
+
+RECENT = RecentChoices(4096)
+"""The choices :func:`choose_index_contexts` remembers (a column's is a few kB at most)."""
 
 
 def choose_index_contexts(codebooks: list[Codebook], layers: list[PatchLayer],
@@ -47,26 +98,53 @@ def choose_index_contexts(codebooks: list[Codebook], layers: list[PatchLayer],
     per_layer = [_columns(layer, codebooks) for layer in layers if len(layer)]
     if not per_layer:
         return []
-    joined = np.concatenate(per_layer, axis=1)
     entries = codebook_columns(codebooks)
+    whole = (int(codec), level, tuple(int(e) for e in entries), tuple(cb.groups for cb in codebooks),
+             tuple(digest(columns) for columns in per_layer))
+    known = RECENT.get(whole)
+    if known is not None:
+        return list(known)
+    joined = np.concatenate(per_layer, axis=1)
     owner = np.repeat(np.arange(len(codebooks)), [cb.groups for cb in codebooks])
 
     def decide(target: int) -> IndexContext | None:
         if entries[target] < 2:
             return None
-        context = _best_candidate(joined, entries, owner, target)
-        if context is None:
-            return None
-        table = rank_table(joined[context], joined[target], int(entries[context]),
-                           int(entries[target]))
-        record = IndexContext(target, context, table)
-        return record if _measured_gain(per_layer, record, codec, level) > 0 else None
+        candidates = _candidates(owner, target)
+        # the choice reads only these columns: trials that change other attributes repeat it
+        read = candidates + [target]
+        key = (int(codec), level, target, tuple(read), tuple(int(entries[c]) for c in read),
+               tuple(digest(columns[read]) for columns in per_layer))
+        return RECENT.get_or_make(key, lambda: _decided(per_layer, joined, entries, candidates,
+                                                         target, codec, level))
 
     with ThreadPoolExecutor(jobs or default_jobs()) as pool:
         chosen = [r for r in pool.map(decide, range(1, len(entries))) if r is not None]
         if chosen and not _shrinks_file(per_layer, chosen, codec, level, pool):
-            return []
+            chosen = []
+    RECENT.put(whole, list(chosen))
     return chosen
+
+
+def _candidates(owner: np.ndarray, target: int) -> list[int]:
+    """The columns ``target`` may be coded given: the earlier ones of its attribute, or every
+    earlier one when the attribute has a single column."""
+    same = [c for c in range(target) if owner[c] == owner[target]]
+    return same if same else list(range(target))
+
+
+def _decided(per_layer: list[np.ndarray], joined: np.ndarray, entries: np.ndarray,
+             candidates: list[int], target: int, codec: Codec, level: int | None
+             ) -> IndexContext | None:
+    """The context record of column ``target`` when its best candidate saves bytes on the
+    file's codec (None otherwise)."""
+    context = _best_candidate(joined, entries, candidates, target)
+    if context is None:
+        return None
+    table = rank_table(joined[context], joined[target], int(entries[context]),
+                       int(entries[target]))
+    record = IndexContext(target, context, table)
+    return record if _measured_gain(per_layer, record, codec, level) > 0 else None
 
 
 def _columns(layer: PatchLayer, codebooks: list[Codebook]) -> np.ndarray:
@@ -74,12 +152,11 @@ def _columns(layer: PatchLayer, codebooks: list[Codebook]) -> np.ndarray:
     return np.frombuffer(pack_indices(layer.indices, codebooks), np.uint8).reshape(-1, len(layer))
 
 
-def _best_candidate(columns: np.ndarray, entries: np.ndarray, owner: np.ndarray,
+def _best_candidate(columns: np.ndarray, entries: np.ndarray, candidates: list[int],
                     target: int) -> int | None:
-    """The earlier column whose rank coding of ``target`` has the smallest order-0 entropy, when
-    it beats the index column's own by :data:`MIN_ESTIMATED_GAIN` bytes (else None)."""
-    same = [c for c in range(target) if owner[c] == owner[target]]
-    candidates = same if same else list(range(target))
+    """The column of ``candidates`` whose rank coding of ``target`` has the smallest order-0
+    entropy, when it beats the index column's own by :data:`MIN_ESTIMATED_GAIN` bytes (else
+    None)."""
     width = int(entries[target])
     own = _entropy_bytes(np.bincount(columns[target], minlength=width))
     best, best_bytes = None, own - MIN_ESTIMATED_GAIN

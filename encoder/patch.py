@@ -25,6 +25,7 @@ from spcodec.index_contexts import IndexContext
 from spcodec.sections import Codebook, PatchPositions, pack_positions
 from spcodec.writer import PatchLayer
 
+from . import codebook_fits
 from .config import DEFAULT_POSITION_BITS, RETRAINED_POSITION_BITS, PatchConfig, codebook_entries
 from .contexts import choose_index_contexts
 from .draco import encode_ordered, grid_for
@@ -381,17 +382,23 @@ class PatchEncoder:
             raise ValueError(f"weights must have shape ({len(cloud)},), got {np.shape(weights)}")
         values = coded_attributes(cloud)
         seeds = {attr: self.seed + 7919 * i for i, attr in enumerate(values)}
+        weights_digest = codebook_fits.digest(None if weights is None else np.asarray(weights))
 
         def train(attr: PatchAttribute) -> tuple[Codebook, np.ndarray]:
             dim = self.entry_dim(attr)
             if len(cloud) == 0:
-                entries = np.zeros((1, dim), np.float16)
-            else:
-                size = codebook_entries(cfg, len(cloud), attr.width // dim)
-                if cfg.entry_counts and attr.name in cfg.entry_counts:
-                    size = max(1, min(size, cfg.entry_counts[attr.name]))
-                entries = train_codebook(values[attr], dim, size, weights, cfg, seeds[attr])
-            return self._entries_and_indices(attr, values[attr], entries, weights)
+                return self._entries_and_indices(attr, values[attr], np.zeros((1, dim), np.float16),
+                                                 weights)
+            size = codebook_entries(cfg, len(cloud), attr.width // dim)
+            if cfg.entry_counts and attr.name in cfg.entry_counts:
+                size = max(1, min(size, cfg.entry_counts[attr.name]))
+            # everything the fit reads: a size target's trials and its final file repeat fits
+            key = (int(attr), dim, size, seeds[attr], cfg.kmeans, cfg.kmeans_samples,
+                   cfg.kmeans_iterations, self.bit_cost(attr), cfg.ecvq_iterations,
+                   cfg.sh_zero_entry, codebook_fits.digest(values[attr]), weights_digest)
+            return codebook_fits.RECENT(key, lambda: self._entries_and_indices(
+                attr, values[attr], train_codebook(values[attr], dim, size, weights, cfg, seeds[attr]),
+                weights))
 
         done = dict(zip(values, self._map(train, list(values))))
         return Quantized([done[a][0] for a in values], {a: done[a][1] for a in values})

@@ -289,9 +289,12 @@ def test_the_writer_reuses_the_index_sections_the_check_compressed(monkeypatch):
     """The "does the file shrink" check compresses every index section with the chosen
     contexts exactly as the writer does: writing the file then compresses none of them again."""
     from spcodec.encoder import compressions
+    from spcodec.encoder import contexts as contexts_module
     from spcodec.writer import write_file
 
     monkeypatch.setattr(compressions, "RECENT", compressions.RecentCompressions(64 << 20))
+    # a fresh memory of choices too: one remembered from an earlier test compresses nothing
+    monkeypatch.setattr(contexts_module, "RECENT", contexts_module.RecentChoices(4096))
     scene = _correlated_scene(5, 6000, 2)
     contexts = choose_index_contexts(scene.codebooks, scene.patch_layers, Codec.ZLIB)
     assert contexts

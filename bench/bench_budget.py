@@ -14,6 +14,14 @@ codebooks' binary16 entries cost before any clustering).
         --json budget.json
     python bench/bench_budget.py --scenes fourth_st --target-size 2355982 --json budget.json
 
+With ``--target-size``, each row of a quantity the precision search chose also carries the search's
+predicted image MSE for it (``predicted_mse``: the linearized renderer's, or for positions our own
+renderer's, summed over its two training framings), the viewer's MSE summed the same way
+(``viewer_mse``) and their ratio: the check that keeps the search's distortion model honest. A ratio
+that differs between quantities of one scene means the search misjudges one against another; a
+ratio common to all only rescales the curve. The viewer's 8-bit output makes small errors look
+larger than their squared error predicts, so compare quantities of similar error.
+
 Needs the viewer yardstick (``bench/viewer_yardstick.py``: node, Chromium and the shared tool).
 """
 
@@ -124,6 +132,41 @@ def variants(original: GaussianCloud, result, decoded: GaussianCloud,
     yield "the whole file", decoded
 
 
+SEARCHED = {"patch positions": "POSITION", "patch scales (codebooks)": "SCALE",
+            "patch quats (codebooks)": "ROTATION", "patch opacities (codebooks)": "OPACITY",
+            "patch sh_dc (codebooks)": "COLOR_DC"}
+"""Budget rows of a quantity the precision search chooses, by the search's name for it."""
+
+
+def searched_quantity(label: str) -> str | None:
+    """The precision search's name of the quantity a budget row replaces (None: not searched)."""
+    if label.startswith("patch SH band "):
+        return f"SH_BAND_{label.split()[3]}"
+    return SEARCHED.get(label)
+
+
+def viewer_mse(seen: dict[str, float]) -> float:
+    """The viewer's PSNRs of one row as MSE summed over its framings, as the search sums its
+    distortion over its two (an identical render, infinite dB, adds nothing)."""
+    return sum(10.0 ** (-db / 10.0) for db in seen.values() if math.isfinite(db))
+
+
+def with_prediction(row: dict, predicted: dict[str, float], seen: dict[str, float]) -> dict:
+    """``row`` with the search's predicted MSE of its quantity, the viewer's, and their ratio,
+    when the search chose that quantity's precision (``predicted``: the encode statistics'
+    ``predicted_distortions``); the whole file's row gets the sum of every prediction."""
+    quantity = searched_quantity(row["quantity"])
+    if row["quantity"] == "the whole file" and predicted:
+        guess = sum(predicted.values())
+    elif quantity in predicted:
+        guess = predicted[quantity]
+    else:
+        return row
+    seen_mse = viewer_mse(seen)
+    return {**row, "predicted_mse": guess, "viewer_mse": seen_mse,
+            "viewer_over_predicted": seen_mse / guess if guess > 0 else None}
+
+
 def budget(name: str, preset: str, cache: Path, seed: int, grid_bits: tuple[int, ...],
            target_size: int | None = None) -> list[dict]:
     rel, up, antialiased = SCENES[name]
@@ -132,19 +175,23 @@ def budget(name: str, preset: str, cache: Path, seed: int, grid_bits: tuple[int,
     start = time.perf_counter()
     result = encode(original, preset, up, antialiased, seed, target_size)
     decoded = spcodec.decode(result.data)
+    predicted = ((result.stats.rate or {}).get("precision") or {}).get("predicted_distortions", {})
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "variant.ply"
         for label, cloud in variants(original, result, decoded, grid_bits):
             spcodec.write_ply(path, cloud)
             seen = viewer_yardstick.two_framings(ply, path, cache, up, antialiased)
+            row = with_prediction(dict(scene=name, preset=preset, target_size=target_size,
+                                       bytes=len(result.data), quantity=label), predicted, seen)
             # identical renders have no PSNR: null in the JSON, "=" in the printout
             seen = {k: None if math.isinf(v) else v for k, v in seen.items()}
-            row = dict(scene=name, preset=preset, target_size=target_size, bytes=len(result.data),
-                       quantity=label, **seen)
+            row.update(seen)
             shown = {k: "=" if v is None else f"{v:.2f}" for k, v in seen.items()}
-            print(f"{name:>10} {label:<42} orbit {shown['orbit']:>6}  close {shown['close']:>6}",
-                  flush=True)
+            ratio = row.get("viewer_over_predicted")
+            model = "" if ratio is None else f"  viewer / predicted MSE {ratio:6.2f}"
+            print(f"{name:>10} {label:<42} orbit {shown['orbit']:>6}  close {shown['close']:>6}"
+                  f"{model}", flush=True)
             rows.append(row)
     rows[-1]["seconds"] = time.perf_counter() - start
     return rows

@@ -250,7 +250,9 @@ class SizeTarget(Sizing):
         if chosen is not None:
             self.allocated = chosen.patch_config(encoder.config)
             self.search, self.chosen = search, chosen
-            record.update(options=chosen.describe(), predicted_distortion=chosen.distortion)
+            record.update(options=chosen.describe(), predicted_distortion=chosen.distortion,
+                          predicted_distortions={a: o.distortion
+                                                 for a, o in chosen.options.items()})
             self.record["rate"].update(predicted_bytes=written)
             self.record["rate"].pop("note", None)
         self.record["rate"]["precision"] = record

@@ -116,6 +116,11 @@ def test_a_size_above_the_presets_keeps_every_gaussian_and_buys_precision(scene)
     assert len(spcodec.decode(middle.data)) == len(scene)
     precision = middle.stats.rate["precision"]
     assert "options" in precision, precision
+    # the prediction of each chosen option, which bench_budget sets beside the viewer's error
+    predicted = precision["predicted_distortions"]
+    assert set(predicted) == set(precision["options"])
+    assert all(d >= 0 for d in predicted.values())
+    assert sum(predicted.values()) == pytest.approx(precision["predicted_distortion"])
     finer = [a for a, o in precision["options"].items()
              if "entry_dim" in o and o["entry_dim"] < balanced_dims().get(a, 0)]
     assert finer, precision

@@ -95,7 +95,7 @@ def run_one(args: argparse.Namespace) -> None:
                "bytes": summary.bytes, "nodes": summary.nodes, "depth": summary.depth,
                "levels": {k: {"gaussians": g, "bytes": b} for k, (g, b) in sorted(per_level.items())},
                "partition_s": round(summary.partition_seconds, 2),
-               "nodes_s": round(summary.nodes_seconds, 2)}
+               "nodes_s": round(summary.nodes_seconds, 2), **node_cpu(Path(args.output))}
     seconds = time.perf_counter() - start
     own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
@@ -103,6 +103,15 @@ def run_one(args: argparse.Namespace) -> None:
                us_per_gaussian=round(1e6 * seconds / out["gaussians"], 1),
                peak_mb_self=round(own), peak_mb_children=round(children))
     print(json.dumps(out), flush=True)
+
+
+def node_cpu(tileset: Path) -> dict:
+    """CPU seconds summed over the nodes' records: merging (inner nodes; a leaf's is its load)
+    and encoding, as the node tasks measured them in their own processes."""
+    records = [json.loads(p.read_text()) for p in (tileset / "nodes").glob("*.json")]
+    merge = sum(r.get("merge_cpu_seconds", 0.0) for r in records)
+    whole = sum(r.get("cpu_seconds", 0.0) for r in records)
+    return {"merge_cpu_s": round(merge, 1), "encode_cpu_s": round(whole - merge, 1)}
 
 
 def compare(args: argparse.Namespace) -> None:

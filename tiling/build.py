@@ -37,7 +37,7 @@ from .rows import cloud_to_rows, rows_to_cloud
 FAIL_ONCE_ENV = "SPCODEC_TILING_FAIL_ONCE"
 """Test hook: node ids (comma-separated) whose first attempt raises, to exercise retries."""
 
-FORMAT_VERSION = 3
+FORMAT_VERSION = 4
 """Bumped when a node's content would change for the same input (part of every digest)."""
 
 
@@ -70,7 +70,7 @@ def build_node(job: NodeJob, children: list[dict]) -> dict:
         return {**previous, "encoded": False}
     record_path.unlink(missing_ok=True)  # its files are about to change: never pair old and new
     _maybe_fail(job.id, out)
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     if job.children:
         level = merge_children(out, job, children)
         cloud, capped = level.cloud, level.capped
@@ -78,6 +78,7 @@ def build_node(job: NodeJob, children: list[dict]) -> dict:
         _save_rows(cloud_path(out, job), cloud_to_rows(cloud))
     else:
         cloud, error, capped = rows_to_cloud(np.load(leaf_path(out / "work", job.id))), 0.0, 0
+    merge_cpu = time.process_time() - cpu_start
     from spcodec.encoder import encode
 
     result = encode(cloud, config, source_name=f"tile {job.id}")
@@ -90,7 +91,9 @@ def build_node(job: NodeJob, children: list[dict]) -> dict:
               "count": int(len(result.source_index)), "input_count": len(cloud),
               "bytes": len(result.data),
               "box": [lo.tolist(), hi.tolist()], "error": float(error), "capped": capped,
-              "seconds": time.perf_counter() - start}
+              "seconds": time.perf_counter() - start,
+              # CPU of this process, every thread: the merge (or a leaf's load) and the whole node
+              "merge_cpu_seconds": merge_cpu, "cpu_seconds": time.process_time() - cpu_start}
     atomic_write(record_path, json.dumps(record).encode())
     return {**record, "encoded": True}
 

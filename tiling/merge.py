@@ -96,8 +96,13 @@ def matrix_to_quat(rot: np.ndarray) -> np.ndarray:
 def covariances(cloud: GaussianCloud) -> np.ndarray:
     """(n, 3, 3) world covariances ``R diag(s^2) R^T`` in float64."""
     rot = quat_to_matrix(cloud.quats)
-    var = np.exp(2.0 * cloud.scales.astype(np.float64))
-    return np.einsum("nij,nj,nkj->nik", rot, var, rot)
+    scaled = rot * np.exp(2.0 * cloud.scales.astype(np.float64))[:, None, :]
+    cov = np.empty_like(rot)
+    for r in range(3):  # written out: einsum and batched matmul spend their time per 3x3 matrix
+        for c in range(r, 3):
+            cov[:, r, c] = cov[:, c, r] = (scaled[:, r, 0] * rot[:, c, 0] + scaled[:, r, 1] * rot[:, c, 1]
+                                           + scaled[:, r, 2] * rot[:, c, 2])
+    return cov
 
 
 def ellipsoid_area(log_scales: np.ndarray) -> np.ndarray:
@@ -138,12 +143,16 @@ def merge_groups(cloud: GaussianCloud, labels: np.ndarray, count: int) -> Merged
     w = weights(cloud)
     total = np.bincount(labels, w, count)
     share = w / total[labels]
+    order = np.argsort(labels, kind="stable")
+    starts = np.flatnonzero(np.diff(labels[order], prepend=-1))
+    if len(starts) != count:
+        raise ValueError(f"labels must name every group 0..{count - 1} at least once")
 
     def average(values: np.ndarray) -> np.ndarray:
-        flat = values.reshape(len(values), -1).astype(np.float64) * share[:, None]
-        out = np.zeros((count, flat.shape[1]))
-        np.add.at(out, labels, flat)
-        return out.reshape((count,) + values.shape[1:])
+        """Share-weighted sums per group: the rows sorted by group, each group's run added up in
+        row order (as ``np.add.at`` adds, ~20x slower)."""
+        flat = values.reshape(len(values), -1)[order].astype(np.float64) * share[order, None]
+        return np.add.reduceat(flat, starts, axis=0).reshape((count,) + values.shape[1:])
 
     mean = average(cloud.means)
     offset = cloud.means.astype(np.float64) - mean[labels]

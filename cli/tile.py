@@ -11,13 +11,17 @@ HELP = ("encode a scene as a tileset (OUT/tileset.json, 3D Tiles 1.1, and one .s
         "read in chunks, cut into a k-d tree, coarser levels merged from finer ones, each node "
         "encoded on its own as a task on Dask; `spcodec serve OUT/` streams it by view")
 
+PROGRESS_DELAY = 2.0
+"""Seconds a stage runs before its progress is shown (as ``eval`` and ``render``): a small build
+prints only its result."""
+
 
 def configure(p: argparse.ArgumentParser) -> None:
     from spcodec.tiling.config import TilingConfig
 
     defaults = TilingConfig()
-    p.add_argument("input", help="the scene (a binary PLY is read memory-mapped; other formats "
-                   "are loaded whole)")
+    p.add_argument("input", help="the scene (a binary PLY or a .splat is read memory-mapped, a "
+                   "chunk at a time; other formats are loaded whole)")
     p.add_argument("-o", "--output", required=True, help="the tileset's folder")
     p.add_argument("--leaf-size", type=Bounded(int, 16), default=defaults.leaf_size, metavar="N",
                    help="Gaussians per node at most, %(type)s; a worker's memory follows it "
@@ -39,15 +43,23 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--keep-work", action="store_true",
                    help="keep OUT/work/ after a successful build; by default it is removed, since "
                    "its spilled leaves are as large as the input and only resume a failed build")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress display on stderr (default: off)")
 
 
 def run(args: argparse.Namespace) -> int:
+    from spcodec.encoder.progress import StageReporter
     from spcodec.tiling import TilingConfig, build_tileset
 
     config = TilingConfig(leaf_size=args.leaf_size, branching=args.branching, preset=args.preset,
                           workers=args.workers, cluster=args.cluster, seed=args.seed,
-                           keep_work=args.keep_work)
-    summary = build_tileset(args.input, args.output, config)
+                          keep_work=args.keep_work)
+    reporter = StageReporter(enabled=not args.quiet, delay=PROGRESS_DELAY)
+    try:
+        summary = build_tileset(args.input, args.output, config, reporter.stage)
+    except BaseException:  # end the stage's line, so the one-line error stands on its own
+        reporter.interrupt()
+        raise
     print(f"{summary.tileset}: {summary.nodes} nodes ({summary.leaves} leaves, depth "
           f"{summary.depth}), {summary.input_gaussians:,} Gaussians in, "
           f"{summary.encoded_gaussians:,} encoded over every level, {summary.bytes:,} bytes; "

@@ -96,7 +96,26 @@ def test_a_worker_killed_in_a_node_costs_a_retry_not_the_build(small_ply, tmp_pa
     assert decoded_leaves(out) == 1400
 
 
-def test_an_unreachable_cluster_is_one_line(small_ply, tmp_path, capsys):
-    code = tile(small_ply, tmp_path / "tiles", "tcp://127.0.0.1:9")
+def test_an_unreachable_cluster_is_one_line_before_anything_is_written(small_ply, tmp_path,
+                                                                      capsys):
+    """A wrong address is the user's mistake (exit 2), found before the input is partitioned:
+    no ``work/`` (a copy of the whole input) is left behind, nor the output folder."""
+    import dask
+
+    out = tmp_path / "tiles"
+    with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):  # not the default 30 s
+        code = tile(small_ply, out, "tcp://127.0.0.1:9")
     err = capsys.readouterr().err
-    assert code != 0 and err.count("\n") == 1 and "Traceback" not in err, err
+    assert code == 2, err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert "cannot reach the Dask scheduler at --cluster tcp://127.0.0.1:9" in err, err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("address, reason", [("localhost", "missing port number"),
+                                             ("nonsense://x:1", "unknown address scheme")])
+def test_an_address_that_is_no_address_is_one_line(small_ply, tmp_path, capsys, address, reason):
+    out = tmp_path / "tiles"
+    assert tile(small_ply, out, address) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and reason in err and not out.exists(), err

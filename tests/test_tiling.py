@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from spcodec.cloud import GaussianCloud
 from spcodec.decoder import decode
+from spcodec.encoder.stages import Stage
 from spcodec.ply import read_ply, write_ply
 from spcodec.synthetic import make_scene
 from spcodec.tiling import TilingConfig, build_tileset
@@ -53,12 +54,48 @@ def small_ply(tmp_path_factory) -> Path:
 SMALL = dict(leaf_size=700, branching=2)
 
 
+class RecordedStage(Stage):
+    """A progress stage that remembers what it was told."""
+
+    def __init__(self, name: str, total: int | None) -> None:
+        self.name, self.total, self.count, self.summary = name, total, 0, None
+
+    def update(self, count: int = 1, **figures: float) -> None:
+        self.count += count
+
+    def done(self, summary: str = "") -> None:
+        self.summary = summary
+
+
+class Recorder:
+    """A progress factory (``encoder.stages.ProgressFactory``) that keeps its stages."""
+
+    def __init__(self) -> None:
+        self.stages: list[RecordedStage] = []
+
+    def __call__(self, name: str, total: int | None) -> RecordedStage:
+        self.stages.append(RecordedStage(name, total))
+        return self.stages[-1]
+
+    def named(self, start: str) -> RecordedStage:
+        (stage,) = [s for s in self.stages if s.name.startswith(start)]
+        return stage
+
+
 @pytest.fixture(scope="module")
-def built(scene_ply, tmp_path_factory):
-    """The synthetic scene built in this process (no engine)."""
+def building(scene_ply, tmp_path_factory):
+    """The synthetic scene built in this process (no engine), read 1,000 rows at a time, with
+    the progress it reported."""
     out = tmp_path_factory.mktemp("tiles")
-    summary = build_tileset(scene_ply, out, TilingConfig(leaf_size=LEAF, workers=0))
-    return out, summary
+    recorder = Recorder()
+    summary = build_tileset(scene_ply, out, TilingConfig(leaf_size=LEAF, workers=0,
+                                                         chunk_rows=1000), recorder)
+    return out, summary, recorder
+
+
+@pytest.fixture(scope="module")
+def built(building):
+    return building[:2]
 
 
 def sorted_rows(rows: np.ndarray) -> np.ndarray:
@@ -78,6 +115,47 @@ def test_chunks_of_a_mapped_ply_are_the_reader_s_cloud(scene_ply):
     whole = GaussianCloud.concat([c for _, c in source.chunks(333)])
     assert whole.equals(read_ply(scene_ply))
     assert np.array_equal(source.all_positions(1000), whole.means)
+
+
+def splat_file(path: Path, n: int, seed: int = 0) -> Path:
+    """A ``.splat`` of ``n`` random Gaussians, written by the format's writer."""
+    from spcodec.formats import splat
+
+    rng = np.random.default_rng(seed)
+    cloud = GaussianCloud(means=rng.normal(size=(n, 3)) * 5, scales=rng.uniform(-5, -1, (n, 3)),
+                          quats=rng.normal(size=(n, 4)), opacities=rng.uniform(-4, 4, n),
+                          sh_dc=rng.normal(size=(n, 3)), sh_rest=np.zeros((n, 0, 3)))
+    splat.write(str(path), cloud)
+    return path
+
+
+def test_chunks_of_a_mapped_splat_are_the_reader_s_cloud(tmp_path):
+    from spcodec.formats import read_scene
+
+    path = splat_file(tmp_path / "scene.splat", 1000)
+    source = open_source(path)
+    assert source.mapped and source.count == 1000 and source.sh_degree == 0
+    whole = GaussianCloud.concat([c for _, c in source.chunks(333)])
+    assert whole.equals(read_scene(path))
+    assert np.array_equal(source.all_positions(97), whole.means)
+
+
+def test_a_mapped_splat_holds_a_chunk_not_the_file(tmp_path):
+    """Reading a .splat in chunks allocates about a chunk's worth, not the file's 6.4 MB."""
+    import tracemalloc
+
+    path = splat_file(tmp_path / "big.splat", 200_000)
+    tracemalloc.start()
+    try:
+        source = open_source(path)
+        for _, cloud in source.chunks(5000):
+            assert len(cloud) == 5000
+        source.all_positions(5000)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    centres = 200_000 * 12  # pass 1 keeps every centre, by design
+    assert peak < centres + 2_000_000, f"peak {peak:,} bytes for a {path.stat().st_size:,}-byte file"
 
 
 def test_other_inputs_are_loaded_whole_and_chunked_alike(tmp_path):
@@ -189,6 +267,21 @@ def test_a_level_reduces_by_the_branching_factor():
     assert level.spatial_error > 0 and level.cloud.is_finite()
 
 
+def test_the_spec_states_the_pair_cost_the_code_uses():
+    """spec/tileset.md describes how inner tiles are made; its figures are the code's."""
+    from spcodec.tiling.grouping import NEIGHBOURS
+    from spcodec.tiling.pair_cost import APPEARANCE_COST, THINNEST
+
+    text = " ".join((Path(__file__).parents[1] / "spec" / "tileset.md").read_text().split())
+    section = text[text.index("## Levels of detail"):text.index("## Decoding")]
+    for phrase in (f"{NEIGHBOURS} nearest neighbours", "Kullback-Leibler divergence",
+                   "six sigma points", f"1/{round(1 / THINNEST)} of its longest",
+                   f"{APPEARANCE_COST:g} times the squared difference", "every SH coefficient",
+                   f"capped below 1 (at {MAX_OPACITY:g}", "opacity times the surface area"):
+        assert phrase in section, phrase
+    assert "weighted variance the pair adds" not in section  # the retired cost
+
+
 # ---------------------------------------------------------------------- the whole build
 def check_tileset(out: Path, input_count: int) -> dict:
     doc = json.loads((out / "tileset.json").read_text())
@@ -225,6 +318,18 @@ def test_every_node_decodes_to_the_count_the_index_says(built):
     assert root["gaussians"] <= LEAF  # an inner node holds about as many as a leaf
 
 
+def test_every_pass_and_every_node_is_a_counted_stage(building):
+    out, summary, recorder = building
+    chunks = -(-summary.input_gaussians // 1000)
+    assert [s.name.split(":")[0] for s in recorder.stages] == [
+        "partition pass 1 of 2", "partition pass 2 of 2", f"digest {summary.leaves} leaves",
+        f"encode {summary.nodes} nodes"]
+    for stage in recorder.stages:  # each counted to its total, and closed
+        assert stage.total and stage.count == stage.total and stage.summary is not None
+    assert recorder.stages[0].total == chunks == recorder.stages[1].total
+    assert recorder.named("encode").summary == f"{summary.nodes} encoded, 0 reused"
+
+
 def test_a_second_run_does_no_work(built, scene_ply):
     out, summary = built
     stamps = {p.name: p.stat().st_mtime_ns for p in (out / "nodes").iterdir()}
@@ -239,10 +344,13 @@ def test_a_second_run_does_no_work(built, scene_ply):
 def test_two_local_workers_retry_a_failed_node_and_a_rerun_resumes(small_ply, tmp_path,
                                                                     monkeypatch):
     monkeypatch.setenv(FAIL_ONCE_ENV, "n0")
+    recorder = Recorder()
     summary = build_tileset(small_ply, tmp_path, TilingConfig(**SMALL, workers=2, retries=1,
-                                                              keep_work=True))
+                                                              keep_work=True), recorder)
     assert (tmp_path / "work" / "failed-once-n0").exists()  # the first attempt did fail
     assert summary.nodes == 3 and summary.encoded_nodes == 3
+    nodes = recorder.named("encode")  # each node counted once as it completed, the retried too
+    assert nodes.total == nodes.count == 3 and nodes.summary == "3 encoded, 0 reused"
     check_tileset(tmp_path, summary.input_gaussians)
     # in this process, a changed encoder setting (the seed) redoes every node; the same, none
     assert build_tileset(small_ply, tmp_path, TilingConfig(**SMALL, workers=0, seed=1)) \
@@ -289,6 +397,37 @@ def test_spcodec_tile_resumes_what_the_library_built_and_refuses_in_one_line(bui
     error = capsys.readouterr().err.strip()
     assert "missing.ply" in error and len(error.splitlines()) == 1
     assert not (tmp_path / "t" / "tileset.json").exists()
+
+
+def test_spcodec_tile_shows_its_stages_and_quiet_hides_them(small_ply, tmp_path, monkeypatch,
+                                                             capsys):
+    from spcodec.cli import main as spcodec
+    from spcodec.cli import tile
+
+    monkeypatch.setattr(tile, "PROGRESS_DELAY", 0.0)  # a stage shows at once, however quick
+    args = ["tile", str(small_ply), "-o", str(tmp_path / "t"), "--leaf-size", "700",
+            "--branching", "2", "--workers", "0"]
+    assert spcodec(args) == 0
+    err = capsys.readouterr().err
+    for line in ("partition pass 1 of 2: read 1,400 centres", "partition pass 2 of 2",
+                 "encode 3 nodes 1/3", "encode 3 nodes 3/3", "encode 3 nodes: 3 encoded, 0 reused"):
+        assert line in err, err
+    assert "ETA" in err
+    assert spcodec([*args, "--quiet"]) == 0
+    out, err = capsys.readouterr()
+    assert err == "" and "3 nodes (2 leaves, depth 1)" in out and "0 nodes encoded this run" in out
+
+
+def test_a_missing_dask_is_one_line_before_anything_is_written(scene_ply, tmp_path, monkeypatch,
+                                                                capsys):
+    from spcodec.cli import main as spcodec
+
+    monkeypatch.setitem(sys.modules, "dask.distributed", None)  # as if it were not installed
+    out = tmp_path / "out"
+    assert spcodec(["tile", str(scene_ply), "-o", str(out), "--workers", "2"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "pip install 'spcodec[tiling]'" in err, err
+    assert not out.exists()
 
 
 @pytest.mark.parametrize("args, message", [

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from spcodec.encoder.progress import StageReporter
 from spcodec.errors import SpcodecError
 
 from .config import TilingConfig
@@ -15,7 +16,7 @@ def parser() -> argparse.ArgumentParser:
     defaults = TilingConfig()
     p = argparse.ArgumentParser(prog="python -m spcodec.tiling",
                                 description="Encode a scene as a 3D Tiles 1.1 tileset of .spc nodes.")
-    p.add_argument("input", help="the scene (a binary PLY is read memory-mapped)")
+    p.add_argument("input", help="the scene (a binary PLY or a .splat is read memory-mapped)")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--leaf-size", type=int, default=defaults.leaf_size,
                    help=f"Gaussians per node at most (default {defaults.leaf_size})")
@@ -30,6 +31,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--keep-work", action="store_true",
                    help="keep OUT/work/ (spilled leaves, as large as the input; they only resume a "
                         "failed build)")
+    p.add_argument("--quiet", action="store_true", help="no progress display on stderr")
     return p
 
 
@@ -38,9 +40,11 @@ def main(argv: list[str] | None = None) -> int:
     config = TilingConfig(leaf_size=args.leaf_size, branching=args.branching, preset=args.preset,
                           workers=args.workers, cluster=args.cluster, seed=args.seed,
                           keep_work=args.keep_work)
+    reporter = StageReporter(enabled=not args.quiet, delay=2.0)
     try:
-        summary = build_tileset(args.input, args.output, config)
+        summary = build_tileset(args.input, args.output, config, reporter.stage)
     except (SpcodecError, OSError) as exc:
+        reporter.interrupt()
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(f"{summary.tileset}: {summary.nodes} nodes ({summary.leaves} leaves, depth "

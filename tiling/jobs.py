@@ -11,49 +11,100 @@ bottom-up without a hand-written scheduler), and ``Client(address)`` reaches a r
 from __future__ import annotations
 
 import logging
-from typing import Any
+from contextlib import contextmanager
+from typing import TYPE_CHECKING, Any, Iterator
+
+from spcodec.errors import UsageError
 
 from .build import NodeJob, build_node
 from .config import TilingConfig
 
+if TYPE_CHECKING:
+    from dask.distributed import Client
 
-def run_nodes(jobs: list[NodeJob], config: TilingConfig) -> dict[str, dict]:
-    """Every job's record by node id; ``jobs`` lists each node after its children."""
+    from spcodec.encoder.stages import Stage
+
+
+@contextmanager
+def engine(config: TilingConfig) -> Iterator[Client | None]:
+    """The Dask client the nodes run on (None: this process, ``workers=0`` and no cluster).
+
+    Entered before any pass over the input, so that a scheduler that cannot be reached or a Dask
+    that is not installed is a user's one-line error at once, not after a partition that takes
+    minutes at 20 M Gaussians and leaves its spilled leaves behind."""
     if config.workers == 0 and config.cluster is None:
-        return run_here(jobs)
-    return run_on_dask(jobs, config)
-
-
-def run_here(jobs: list[NodeJob]) -> dict[str, dict]:
-    """In this process, one node after another (no engine, no retries)."""
-    records: dict[str, dict] = {}
-    for job in jobs:
-        records[job.id] = build_node(job, [records[c] for c in job.children])
-    return records
-
-
-def run_on_dask(jobs: list[NodeJob], config: TilingConfig) -> dict[str, dict]:
-    """On a Dask cluster: a task per node, depending on its children's tasks, each retried up to
-    ``config.retries`` times."""
-    from dask.distributed import Client, LocalCluster
-
-    cluster = None
-    if config.cluster is None:
-        cluster = LocalCluster(n_workers=config.workers, threads_per_worker=1, processes=True,
-                               dashboard_address=":0", silence_logs=logging.ERROR,
-                               env={"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"})
-    client = Client(cluster if cluster is not None else config.cluster)
+        yield None
+        return
+    client, cluster = connect(config)
     try:
-        futures: dict[str, Any] = {}
-        for job in jobs:
-            futures[job.id] = client.submit(
-                node_task, job, [futures[c] for c in job.children], retries=config.retries,
-                pure=False, key=f"spcodec-tile-{job.id}-{id(futures):x}")
-        results = client.gather([futures[job.id] for job in jobs])
+        yield client
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+def connect(config: TilingConfig) -> tuple[Client, Any]:
+    """A client of the scheduler at ``config.cluster``, or of a local cluster of
+    ``config.workers`` single-threaded processes (returned too, to be closed with it)."""
+    try:
+        from dask.distributed import Client, LocalCluster
+    except ImportError as exc:
+        where = "--cluster" if config.cluster else f"{config.workers} local workers"
+        raise UsageError(f"{where} needs Dask ({exc.name or 'distributed'} is not installed): "
+                         "pip install 'spcodec[tiling]', or encode in this process with "
+                         "--workers 0") from None
+    if config.cluster is None:
+        cluster = LocalCluster(n_workers=config.workers, threads_per_worker=1, processes=True,
+                               dashboard_address=":0", silence_logs=logging.ERROR,
+                               env={"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"})
+        return Client(cluster), cluster
+    try:
+        return Client(config.cluster), None
+    except (OSError, ValueError, TypeError) as exc:  # refused, timed out, or not an address
+        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise UsageError(f"cannot reach the Dask scheduler at --cluster {config.cluster}: "
+                         f"{reason}") from None
+
+
+def run_nodes(jobs: list[NodeJob], client: Client | None, retries: int,
+              stage: Stage | None = None) -> dict[str, dict]:
+    """Every job's record by node id; ``jobs`` lists each node after its children. ``stage``
+    counts the nodes as they complete (on Dask, in whatever order the workers finish them)."""
+    if stage is None:
+        from spcodec.encoder.stages import Stage
+
+        stage = Stage()
+    if client is None:
+        return run_here(jobs, stage)
+    return run_on_dask(jobs, client, retries, stage)
+
+
+def run_here(jobs: list[NodeJob], stage: Stage) -> dict[str, dict]:
+    """In this process, one node after another (no engine, no retries)."""
+    records: dict[str, dict] = {}
+    for job in jobs:
+        records[job.id] = build_node(job, [records[c] for c in job.children])
+        stage.update()
+    return records
+
+
+def run_on_dask(jobs: list[NodeJob], client: Client, retries: int,
+                stage: Stage) -> dict[str, dict]:
+    """On a Dask cluster: a task per node, depending on its children's tasks, each retried up to
+    ``retries`` times. The first node that fails for good ends the build with its error."""
+    from dask.distributed import as_completed
+
+    futures: dict[str, Any] = {}
+    for job in jobs:
+        futures[job.id] = client.submit(
+            node_task, job, [futures[c] for c in job.children], retries=retries,
+            pure=False, key=f"spcodec-tile-{job.id}-{id(futures):x}")
+    for future in as_completed(list(futures.values())):
+        if future.status == "error":
+            future.result()  # raises the node's own exception
+        stage.update()
+    results = client.gather([futures[job.id] for job in jobs])
     return {job.id: record for job, record in zip(jobs, results)}
 
 

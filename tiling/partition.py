@@ -20,6 +20,7 @@ import os
 import shutil
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -27,6 +28,9 @@ from spcodec.fileio import atomic_write
 
 from .rows import cloud_to_rows, row_width
 from .source import SceneSource
+
+if TYPE_CHECKING:
+    from spcodec.encoder.stages import ProgressFactory
 
 PARTITION_FILE = "partition.json"
 
@@ -109,19 +113,31 @@ def leaf_path(work: Path, node_id: str) -> Path:
 
 
 def partition(source: SceneSource, work: Path, identity: dict, leaf_size: int, branching: int,
-              chunk_rows: int) -> Partition:
+              chunk_rows: int, progress: ProgressFactory | None = None) -> Partition:
     """Both passes, or the partition already in ``work`` when it was made from the same input
-    with the same settings (``identity``)."""
+    with the same settings (``identity``). ``progress`` gets a stage per pass, counted in chunks
+    read (and one for the leaves' digests), as each takes minutes at 20 M Gaussians."""
+    from spcodec.encoder.stages import silent
+
+    progress = progress or silent
     previous = load_partition(work, identity)
     if previous is not None:
         return previous
     (work / PARTITION_FILE).unlink(missing_ok=True)  # written again once the spill is complete
-    points = source.all_positions(chunk_rows)                      # pass 1: centres only
+    chunks = -(-source.count // chunk_rows)
+    stage = progress(f"partition pass 1 of 2: read {source.count:,} centres", chunks)
+    points = source.all_positions(chunk_rows, stage.update)        # pass 1: centres only
     nodes, leaf_rows = build_tree(points, leaf_size, branching)
     del points
-    spill(source, work, leaf_rows, chunk_rows)                     # pass 2: whole rows
+    stage.done(f"{len(leaf_rows)} leaves of at most {leaf_size:,} Gaussians")
+    stage = progress(f"partition pass 2 of 2: spill rows to {len(leaf_rows)} leaves", chunks)
+    spill(source, work, leaf_rows, chunk_rows, stage.update)       # pass 2: whole rows
+    stage.done(f"{source.count:,} rows spilled")
+    stage = progress(f"digest {len(leaf_rows)} leaves", len(leaf_rows))
     for node_id in leaf_rows:
         nodes[node_id].leaf_digest = file_digest(leaf_path(work, node_id))
+        stage.update()
+    stage.done("done")
     result = Partition(nodes, source.sh_degree, identity)
     doc = {"identity": identity, "sh_degree": source.sh_degree,
            "nodes": [asdict(n) for n in nodes.values()]}
@@ -130,8 +146,9 @@ def partition(source: SceneSource, work: Path, identity: dict, leaf_size: int, b
 
 
 def spill(source: SceneSource, work: Path, leaf_rows: dict[str, np.ndarray],
-          chunk_rows: int) -> None:
-    """Pass 2: each chunk's rows appended to their leaves' files (each file sized in advance)."""
+          chunk_rows: int, chunk_done: Callable[[], object] = lambda: None) -> None:
+    """Pass 2: each chunk's rows appended to their leaves' files (each file sized in advance);
+    ``chunk_done`` is called after each chunk."""
     if (work / "leaves").is_dir():  # another partition's leaves: none may be mistaken for ours
         shutil.rmtree(work / "leaves")
     (work / "leaves").mkdir(parents=True)
@@ -154,6 +171,7 @@ def spill(source: SceneSource, work: Path, leaf_rows: dict[str, np.ndarray],
             out.flush()
             del out
             cursor[k] += n
+        chunk_done()
 
 
 def load_partition(work: Path, identity: dict) -> Partition | None:

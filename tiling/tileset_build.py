@@ -10,15 +10,19 @@ import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from spcodec.errors import UsageError
 
 from .build import FORMAT_VERSION, NodeJob
 from .config import TilingConfig
-from .jobs import run_nodes
+from .jobs import engine, run_nodes
 from .partition import Partition, input_identity, partition
 from .source import open_source
 from .tileset import write_tileset
+
+if TYPE_CHECKING:  # the encoder loads scipy, and `spcodec info` imports this package
+    from spcodec.encoder.stages import ProgressFactory
 
 
 @dataclass
@@ -41,10 +45,18 @@ class TilingSummary:
 
 
 def build_tileset(input_path: str | os.PathLike, out_dir: str | os.PathLike,
-                  config: TilingConfig | None = None) -> TilingSummary:
+                  config: TilingConfig | None = None,
+                  progress: ProgressFactory | None = None) -> TilingSummary:
     """Encode the scene at ``input_path`` as a 3D Tiles 1.1 tileset of ``.spc`` nodes in
     ``out_dir`` (``tileset.json``, ``nodes/``, and while it runs ``work/``: the spilled leaves
-    and merged levels a re-run resumes from, removed at the end unless ``config.keep_work``)."""
+    and merged levels a re-run resumes from, removed at the end unless ``config.keep_work``).
+
+    Everything a user can get wrong (settings, input, output, the engine: a ``--cluster``
+    address or a missing Dask) is checked before anything is written. ``progress`` gets a stage
+    for each partition pass and one for the nodes, counted as they complete (None: silent)."""
+    from spcodec.encoder.stages import silent
+
+    progress = progress or silent
     config = config or TilingConfig()
     config.check()
     out = Path(out_dir)
@@ -53,15 +65,20 @@ def build_tileset(input_path: str | os.PathLike, out_dir: str | os.PathLike,
     source = open_source(input_path)
     if source.count == 0:
         raise UsageError(f"{input_path}: the scene has no Gaussians to encode")
-    (out / "nodes").mkdir(parents=True, exist_ok=True)
-    start = time.perf_counter()
-    identity = input_identity(Path(input_path), leaf_size=config.leaf_size,
-                              branching=config.branching, format=FORMAT_VERSION)
-    parts = partition(source, out / "work", identity, config.leaf_size, config.branching,
-                      config.chunk_rows)
-    partitioned = time.perf_counter()
-    records = run_nodes(jobs_of(parts, out, config), config)
-    finished = time.perf_counter()
+    with engine(config) as client:
+        (out / "nodes").mkdir(parents=True, exist_ok=True)
+        start = time.perf_counter()
+        identity = input_identity(Path(input_path), leaf_size=config.leaf_size,
+                                  branching=config.branching, format=FORMAT_VERSION)
+        parts = partition(source, out / "work", identity, config.leaf_size, config.branching,
+                          config.chunk_rows, progress)
+        partitioned = time.perf_counter()
+        jobs = jobs_of(parts, out, config)
+        stage = progress(f"encode {len(jobs)} nodes", len(jobs))
+        records = run_nodes(jobs, client, config.retries, stage)
+        stage.done(f"{sum(bool(r['encoded']) for r in records.values())} encoded, "
+                   f"{sum(not r['encoded'] for r in records.values())} reused")
+        finished = time.perf_counter()
     path = write_tileset(out, parts, records)
     remove_stale_nodes(out, parts)
     if not config.keep_work:

@@ -55,7 +55,13 @@ def read(path: str) -> GaussianCloud:
                           "records", "truncated")
     n = len(data) // RECORD.itemsize
     check_count(path, n)
-    records = np.frombuffer(data, RECORD)
+    return cloud_from_records(np.frombuffer(data, RECORD))
+
+
+def cloud_from_records(records: np.ndarray) -> GaussianCloud:
+    """The Gaussians of ``RECORD`` records: apart from :func:`read` so that a chunked reader
+    (``spcodec.tiling.source``) decodes a memory-mapped slice of the file the same way."""
+    n = len(records)
     scales = records["scale"].astype(np.float64)
     with np.errstate(divide="ignore"):
         log_scales = np.log(np.maximum(scales, 1e-30))  # 0 (an underflowed tiny scale): -69

@@ -359,6 +359,29 @@ def test_two_local_workers_retry_a_failed_node_and_a_rerun_resumes(small_ply, tm
         .encoded_nodes == 0
 
 
+def test_the_worker_environment_drops_only_dasks_malloc_trim_threshold():
+    import dask
+
+    from spcodec.tiling.jobs import worker_environment
+
+    with dask.config.set({"distributed.nanny.pre-spawn-environ":
+                          {"MALLOC_TRIM_THRESHOLD_": 65536, "OTHER": 1}}):
+        assert worker_environment() == {"OTHER": 1}
+
+
+@pytest.mark.slow  # starts a Dask cluster
+def test_local_workers_start_without_the_malloc_trim_threshold():
+    """Dask's default (65536) made each worker map and unmap the encoder's temporaries on every
+    call: the same merge cost nearly twice the CPU of a plain process (docs/LOG.md 22.5)."""
+    import os
+
+    from spcodec.tiling.jobs import engine
+
+    with engine(TilingConfig(**SMALL, workers=1)) as client:
+        seen = client.run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_"))
+    assert list(seen.values()) == [None]
+
+
 @pytest.mark.slow
 def test_without_retries_an_injected_failure_fails_the_build(small_ply, tmp_path, monkeypatch):
     monkeypatch.setenv(FAIL_ONCE_ENV, "n1")

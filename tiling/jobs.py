@@ -55,9 +55,12 @@ def connect(config: TilingConfig) -> tuple[Client, Any]:
                          "pip install 'spcodec[tiling]', or encode in this process with "
                          "--workers 0") from None
     if config.cluster is None:
-        cluster = LocalCluster(n_workers=config.workers, threads_per_worker=1, processes=True,
-                               dashboard_address=":0", silence_logs=logging.ERROR,
-                               env={"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"})
+        import dask
+
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": worker_environment()}):
+            cluster = LocalCluster(n_workers=config.workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=":0", silence_logs=logging.ERROR,
+                                   env={"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"})
         return Client(cluster), cluster
     try:
         return Client(config.cluster), None
@@ -65,6 +68,21 @@ def connect(config: TilingConfig) -> tuple[Client, Any]:
         reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise UsageError(f"cannot reach the Dask scheduler at --cluster {config.cluster}: "
                          f"{reason}") from None
+
+
+def worker_environment() -> dict:
+    """Dask's environment for new worker processes without ``MALLOC_TRIM_THRESHOLD_``.
+
+    Dask sets it (65536) so that workers hand freed memory back at once; the encoder's numpy
+    temporaries are then mapped and unmapped again on every call, and the same 250 k merge cost
+    13-15 CPU s in a worker against 7-8 in a plain process (docs/LOG.md 22.5). A node's memory is
+    bounded by its tile, so keeping freed pages costs nothing that matters. Workers of a cluster
+    reached by ``--cluster`` are started by their owner (the README says so)."""
+    import dask
+
+    environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {})
+    environ.pop("MALLOC_TRIM_THRESHOLD_", None)
+    return environ
 
 
 def run_nodes(jobs: list[NodeJob], client: Client | None, retries: int,

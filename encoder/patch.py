@@ -324,6 +324,8 @@ class PatchEncoding:
     index_contexts: bool = False
     """Whether the file may code index columns given earlier ones (``PatchConfig.index_contexts``:
     the writer of the file chooses them, knowing its codec)."""
+    jobs: int | None = None
+    """Threads that choose the contexts (None: the cores available), as the encoder's."""
     _chosen: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def contexts_for(self, codec: Codec, level: int | None) -> list[IndexContext]:
@@ -335,7 +337,8 @@ class PatchEncoding:
         key = (int(codec), level)
         if key not in self._chosen:
             layers = self.layers if sum(map(len, self.layers)) else []
-            self._chosen[key] = choose_index_contexts(self.codebooks, layers, codec, level)
+            self._chosen[key] = choose_index_contexts(self.codebooks, layers, codec, level,
+                                                      jobs=self.jobs)
         return self._chosen[key]
 
 
@@ -481,7 +484,7 @@ class PatchEncoder:
                                          cfg.stored_position_bits)
             layers.append(PatchLayer(positions, quantized.subset(members).indices))
             orders.append(members)
-        return PatchEncoding(quantized.codebooks, layers, orders, cfg.index_contexts)
+        return PatchEncoding(quantized.codebooks, layers, orders, cfg.index_contexts, self.jobs)
 
     def measure_importance(self, cloud: GaussianCloud) -> np.ndarray:
         """Importance (n,) float64 of every Gaussian of ``cloud`` by the configured measure.

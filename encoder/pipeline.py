@@ -175,7 +175,8 @@ def measure_importance(run: EncodeRun) -> np.ndarray:
     occludes): what orders the layers and ranks sketch clusters without retraining."""
     t = time.perf_counter()
     stage = run.progress("importance", None)
-    importance = PatchEncoder(run.config.patch, seed=run.config.seed).measure_importance(run.cloud)
+    importance = PatchEncoder(run.config.patch, seed=run.config.seed,
+                              jobs=run.config.n_jobs).measure_importance(run.cloud)
     stage.done(_importance_summary(run.config.patch))
     run.times["importance"] = time.perf_counter() - t
     return importance
@@ -186,7 +187,7 @@ def encode_whole_patch(run: EncodeRun, refined: RefineResult | None, found: int,
                        ) -> Encoded:
     """Every Gaussian the sketch leaves coded as patch, the sketch capped to its share of the
     file that makes (each trial file of the cap is a full encode, and the last one is kept)."""
-    patch_encoder = PatchEncoder(run.config.patch, seed=run.config.seed)
+    patch_encoder = PatchEncoder(run.config.patch, seed=run.config.seed, jobs=run.config.n_jobs)
     last: list[Encoded] = []
 
     def encoded(part: SketchOutcome, part_writer: SceneWriter) -> WrittenFile:

@@ -40,7 +40,7 @@ def factor_trial(sketch: SketchOutcome, patch: GaussianCloud, writer: SceneWrite
         return writer.write_file(None)
     if config.retrain is None or config.target_psnr is not None:
         return None
-    return pruned_file(writer, PatchEncoder(config.patch, seed=config.seed), patch,
+    return pruned_file(writer, PatchEncoder(config.patch, seed=config.seed, jobs=config.n_jobs), patch,
                        weights[sketch.patch_idx],
                        kept_count(len(patch), config.retrain.patch_downsample))
 
@@ -53,7 +53,7 @@ def encode_pruned_patch(run: EncodeRun, sketch: SketchOutcome, patch: GaussianCl
     scene's Gaussians (:func:`.retraining.targets.scene_weights` when retraining, the patch
     encoder's importance without); ``prepared`` holds the targets (retraining only)."""
     config = run.config
-    encoder = PatchEncoder(config.patch, seed=config.seed)
+    encoder = PatchEncoder(config.patch, seed=config.seed, jobs=config.n_jobs)
     weights = weights[sketch.patch_idx]
     keep = _prune(run, patch, weights, writer, encoder, sizing, sketch.patch_idx)
     encoder = sizing.encoder_for(encoder)

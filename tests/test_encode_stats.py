@@ -143,3 +143,29 @@ def test_the_sketch_record_names_a_drop_only_when_there_was_one(moved, dropped):
     assert doc["moved_to_patch_for_share"] == moved
     assert doc.get("dropped_for_precision", False) is dropped
     assert list(doc)[:2] == ["clusters_found", "clusters_accepted"]
+
+
+def test_jobs_bounds_every_thread_pool_of_the_patch_encoder(scene, monkeypatch):
+    """``n_jobs`` (``--jobs``) is the encoder's thread count all through: the patch encoder's
+    codebooks, importance and index contexts ran on the cores available whatever it said, so a
+    tileset's single-job node encodes took a second core each. The file does not depend on it."""
+    from spcodec.encoder import contexts, patch
+
+    seen = []
+    choose = contexts.choose_index_contexts
+
+    def spy(*args, jobs=None, **kwargs):
+        seen.append(jobs)
+        return choose(*args, jobs=jobs, **kwargs)
+
+    monkeypatch.setattr(patch, "choose_index_contexts", spy)
+    monkeypatch.setattr(contexts, "RECENT", contexts.RecentChoices(4096))
+    one = encode(scene, dataclasses.replace(FAST, n_jobs=1))
+    assert seen and set(seen) == {1}
+    jobs = []
+    monkeypatch.setattr(patch.PatchEncoder, "_map", lambda self, fn, items: (
+        jobs.append(self.jobs), [fn(item) for item in items])[1])
+    assert encode(scene, dataclasses.replace(FAST, n_jobs=1)).data == one.data
+    assert jobs and set(jobs) == {1}
+    assert encode(scene, dataclasses.replace(FAST, n_jobs=2)).data == one.data
+    assert set(jobs) == {1, 2}

@@ -11,6 +11,7 @@ bottom-up without a hand-written scheduler), and ``Client(address)`` reaches a r
 from __future__ import annotations
 
 import logging
+import os
 from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any, Iterator
 
@@ -57,7 +58,8 @@ def connect(config: TilingConfig) -> tuple[Client, Any]:
     if config.cluster is None:
         import dask
 
-        with dask.config.set({"distributed.nanny.pre-spawn-environ": worker_environment()}):
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": worker_environment()}), \
+                _unset_environ(MALLOC_TRIM):
             cluster = LocalCluster(n_workers=config.workers, threads_per_worker=1, processes=True,
                                    dashboard_address=":0", silence_logs=logging.ERROR,
                                    env={"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"})
@@ -68,6 +70,24 @@ def connect(config: TilingConfig) -> tuple[Client, Any]:
         reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise UsageError(f"cannot reach the Dask scheduler at --cluster {config.cluster}: "
                          f"{reason}") from None
+
+
+MALLOC_TRIM = "MALLOC_TRIM_THRESHOLD_"
+
+
+@contextmanager
+def _unset_environ(name: str) -> Iterator[None]:
+    """``name`` out of this process's environment while workers are spawned (they inherit it).
+
+    A nanny writes its pre-spawn environment into its own process's ``os.environ`` and never
+    takes it back, so once any Dask cluster with the defaults has run here (a test, a notebook),
+    the variable would reach every later worker from the parent."""
+    saved = os.environ.pop(name, None)
+    try:
+        yield
+    finally:
+        if saved is not None:
+            os.environ[name] = saved
 
 
 def worker_environment() -> dict:
@@ -81,7 +101,7 @@ def worker_environment() -> dict:
     import dask
 
     environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {})
-    environ.pop("MALLOC_TRIM_THRESHOLD_", None)
+    environ.pop(MALLOC_TRIM, None)
     return environ
 
 

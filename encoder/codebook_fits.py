@@ -10,13 +10,13 @@ the k-means weights) and every setting the fit reads, so a hit returns what a fr
 from __future__ import annotations
 
 import hashlib
-import threading
-from collections import OrderedDict
 from typing import Callable
 
 import numpy as np
 
 from spcodec.sections import Codebook
+
+from .recent import Recent
 
 Fit = tuple[Codebook, np.ndarray]
 """A codebook and the indices (n, groups) uint8 of the values it was fitted to."""
@@ -39,46 +39,20 @@ def _copy(fit: Fit) -> Fit:
     return Codebook(codebook.attribute, codebook.entries.copy()), indices.copy()
 
 
-class RecentFits:
-    """Codebook fits by key, up to ``max_bytes`` of entries and indices, least recently used
-    out first. Thread-safe: the patch encoder fits attributes on several threads."""
+class RecentFits(Recent[Fit]):
+    """Codebook fits by key, up to ``max_bytes`` of entries and indices; the patch encoder fits
+    attributes on several threads."""
 
     def __init__(self, max_bytes: int) -> None:
-        self.max_bytes = max_bytes
-        self.entries: OrderedDict[tuple, Fit] = OrderedDict()
-        self.size = 0
-        self.hits = 0
-        self.lock = threading.Lock()
+        super().__init__(max_bytes, lambda fit: fit[0].entries.nbytes + fit[1].nbytes)
+
+    @property
+    def max_bytes(self) -> int:
+        return self.limit
 
     def __call__(self, key: tuple, fit: Callable[[], Fit]) -> Fit:
         """What ``fit()`` returns, from memory when ``key`` was fitted before."""
-        with self.lock:
-            stored = self.entries.get(key)
-            if stored is not None:
-                self.entries.move_to_end(key)
-                self.hits += 1
-                return _copy(stored)
-        stored = _copy(fit())
-        self._put(key, stored)
-        return _copy(stored)
-
-    def _put(self, key: tuple, stored: Fit) -> None:
-        size = stored[0].entries.nbytes + stored[1].nbytes
-        if size > self.max_bytes:
-            return
-        with self.lock:
-            if key in self.entries:
-                return
-            self.entries[key] = stored
-            self.size += size
-            while self.size > self.max_bytes:
-                _, (codebook, indices) = self.entries.popitem(last=False)
-                self.size -= codebook.entries.nbytes + indices.nbytes
-
-    def clear(self) -> None:
-        with self.lock:
-            self.entries.clear()
-            self.size = 0
+        return _copy(self.get_or_make(key, lambda: _copy(fit())))
 
 
 RECENT = RecentFits(256 << 20)

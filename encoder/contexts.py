@@ -13,9 +13,7 @@ so contexts never make a file larger.
 
 from __future__ import annotations
 
-import threading
 import zlib
-from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -27,6 +25,7 @@ from spcodec.writer import PatchLayer
 
 from . import compressions
 from .codebook_fits import digest
+from .recent import Recent
 from .refine import default_jobs
 
 TOC_ENTRY_BYTES = 40
@@ -36,48 +35,16 @@ MIN_ESTIMATED_GAIN = 64
 """Bytes the entropy estimate must promise before a candidate is compressed for real."""
 
 
-class RecentChoices:
-    """The context choices of recent files, keyed by the content of the columns they read (the
-    last :attr:`max_entries`, least recently used out first); thread-safe.
+class RecentChoices(Recent):
+    """The context choices of recent files, the last ``max_entries``, keyed by the content of
+    the columns they read.
 
     A size target writes the same patch at several precisions, each trial changing only some
     attributes' columns, and the file it keeps repeats one trial: a column's choice, and a
     whole file's, are deterministic for its columns, codec and level, so they are made once."""
 
     def __init__(self, max_entries: int) -> None:
-        self.max_entries = max_entries
-        self.entries: OrderedDict[tuple, object] = OrderedDict()
-        self.lock = threading.Lock()
-
-    def get(self, key: tuple):
-        """The choice stored under ``key`` (None: none)."""
-        with self.lock:
-            if key not in self.entries:
-                return None
-            self.entries.move_to_end(key)
-            return self.entries[key]
-
-    def put(self, key: tuple, value) -> None:
-        with self.lock:
-            self.entries[key] = value
-            self.entries.move_to_end(key)
-            while len(self.entries) > self.max_entries:
-                self.entries.popitem(last=False)
-
-    def get_or_make(self, key: tuple, make):
-        """The choice under ``key``, made by ``make()`` (and kept) when there is none; a choice
-        of None is kept too."""
-        with self.lock:
-            if key in self.entries:
-                self.entries.move_to_end(key)
-                return self.entries[key]
-        value = make()
-        self.put(key, value)
-        return value
-
-    def clear(self) -> None:
-        with self.lock:
-            self.entries.clear()
+        super().__init__(max_entries)
 
 
 RECENT = RecentChoices(4096)

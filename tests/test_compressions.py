@@ -74,6 +74,6 @@ def test_the_encoders_writer_compresses_through_the_memory(monkeypatch):
     from spcodec.writer import WriteOptions
 
     seen = []
-    monkeypatch.setattr(compressions.RECENT, "_put", lambda key, stored: seen.append(key))
+    monkeypatch.setattr(compressions.RECENT, "put", lambda key, stored: seen.append(key))
     SceneWriter(0, [], {"note": "x" * 500}, WriteOptions()).write(None)
     assert seen  # the metadata section went through the encoder's memory

@@ -134,7 +134,7 @@ class Manifest:
     root: Path
     vectors: list[Vector]
     generator: dict = field(default_factory=dict)
-    spec_version: str = "1.2"
+    spec_version: str = "1.2.1"
 
     def path(self, relative: str) -> Path:
         return self.root / relative

@@ -253,8 +253,8 @@ def metadata_not_json() -> bytes:
 
 
 @valid("patch-draco-kdtree-order",
-       "A patch layer in a kd-tree Draco blob (writers must not, [R-58]): its Gaussians come in "
-       "Draco's decode order", ["R-58", "R-1"])
+       "A patch layer in a kd-tree Draco blob (a set of positions, as writers may code it from "
+       "1.2.1, [R-58]): its Gaussians come in Draco's decode order", ["R-58", "R-100", "R-1"])
 def patch_kdtree() -> bytes:
     rng = np.random.default_rng(18)
     books = scenes.codebooks(rng, 0, entries=3)

@@ -402,19 +402,20 @@ def position_options(scene: GaussianCloud, rows: np.ndarray, config: EncoderConf
     out = []
     rendered: dict[bytes, float] = {}  # the MSE of each distinct set of decoded positions
     for bits in allocation.position_bits:
-        stored = encode_positions(scene.means[order], config.patch.position_mode, bits)
-        decoded = stored.decode()
+        stored = encode_positions(scene.means[order], config.patch.position_mode, bits,
+                                  config.patch.positions_as_set)
+        decoded = stored.positions.decode()
         # positions already on a coarser grid are stored on it whatever the bits asked
         # (:func:`.patch.input_grid`): those grids decode alike and render alike
         key = digest(decoded)
         if key not in rendered:
             moved = scene.subset(np.arange(len(scene)))
-            moved.means[order] = decoded
+            moved.means[order[stored.order]] = decoded
             params = GaussianParams.from_cloud(moved, device)
             rendered[key] = sum(weight.get(name, 1.0) * float(np.mean(
                 [np.mean((render_image(params, c, settings) - r) ** 2)
                  for c, r in zip(framings[name], reference[name])])) for name in framings)
-        size = len(zlib.compress(pack_positions(stored)))
+        size = len(zlib.compress(pack_positions(stored.positions)))
         out.append(PositionOption(bits, 8.0 * size / max(len(rows), 1), rendered[key]))
     return out
 

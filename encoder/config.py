@@ -353,13 +353,16 @@ class PatchConfig:
     #: Entries per codebook for some attributes (by name), at most ``codebook_size`` and the
     #: rule above; the rate-distortion search (encoder/allocation.py) sets them. None: none.
     entry_counts: dict[str, int] | None = None
-    #: How positions are stored: "draco" (order-preserving Draco, the smallest: DECISIONS D-9),
+    #: How positions are stored: "draco" (Draco, the smallest: DECISIONS D-9),
     #: "quant16" (16-bit fixed point, delta-coded), "float16" (the paper's) or "float32" (lossless).
     position_mode: str = "draco"
     #: For draco and quant16: bits of precision over the layer's bounding box (quant16: <= 16).
     #: None: :data:`DEFAULT_POSITION_BITS`, except for a retrained patch, where the encoder takes
     #: :data:`RETRAINED_POSITION_BITS` over the scene's robust extent (see that constant).
     position_bits: int | None = None
+    #: In draco mode, also code each layer's positions as a set (Draco's kd-tree mode, the layer
+    #: in Draco's order, [R-58]) and keep whichever coding is smaller (DECISIONS D-29).
+    positions_as_set: bool = True
     #: Number of patch layers (>= 1).
     layers: int = 3
     #: Share of the patch Gaussians in each layer, most important first (renormalized). The first

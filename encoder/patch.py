@@ -28,7 +28,7 @@ from spcodec.writer import PatchLayer
 from . import codebook_fits
 from .config import DEFAULT_POSITION_BITS, RETRAINED_POSITION_BITS, PatchConfig, codebook_entries
 from .contexts import choose_index_contexts
-from .draco import encode_ordered, grid_for
+from .draco import encode_as_set, encode_ordered, grid_for
 from .ecvq import ecvq_refine, with_zero_entry
 from .kmeans import exhaustive_codebook, nearest, sampled_codebook
 from .morton import morton_codes
@@ -113,67 +113,102 @@ def retrained_position_bits(cloud: GaussianCloud) -> int:
     return min(DEFAULT_POSITION_BITS, RETRAINED_POSITION_BITS + extra)
 
 
-def on_input_grid(xyz: np.ndarray, steps: np.ndarray, mode: str) -> PatchPositions:
+@dataclass
+class StoredPositions:
+    """A layer's stored positions and the input rows in the order they are stored ([R-100])."""
+
+    positions: PatchPositions
+    order: np.ndarray
+
+
+def _in_input_order(positions: PatchPositions, n: int) -> StoredPositions:
+    return StoredPositions(positions, np.arange(n, dtype=np.int64))
+
+
+def _draco_candidates(xyz: np.ndarray, step: float, origin: np.ndarray, bits: int, as_set: bool
+                      ) -> list[StoredPositions]:
+    """Draco's sequential coding of the grid and, with ``as_set``, its kd-tree coding of the same
+    grid (the layer reordered as Draco decodes it, :func:`.draco.encode_as_set`)."""
+    encoded = encode_ordered(xyz, step, origin, bits)
+    if encoded is None:
+        return []
+    out = [_in_input_order(PatchPositions.draco(encoded.blob, encoded.positions), len(xyz))]
+    unordered = encode_as_set(xyz, encoded, step, origin, bits) if as_set else None
+    if unordered is not None:
+        out.append(StoredPositions(PatchPositions.draco(unordered.blob, unordered.positions),
+                                   unordered.order))
+    return out
+
+
+def _smallest(candidates: list[StoredPositions]) -> StoredPositions:
+    """The candidate whose section is smallest once compressed (the first among equals)."""
+    sizes = [len(zlib.compress(pack_positions(c.positions))) for c in candidates]
+    return candidates[int(np.argmin(sizes))]
+
+
+def on_input_grid(xyz: np.ndarray, steps: np.ndarray, mode: str, as_set: bool = True
+                  ) -> StoredPositions:
     """Positions that lie on the power-of-two grid of ``steps`` (:func:`input_grid`), stored on it.
 
     QUANT16 (delta-coded along the Morton order, then the section's codec) decodes them bit for
-    bit. In draco mode, Draco's sequential coder on the same grid is tried too and the smaller
-    stored section kept: on fourth_st it takes 232 kB where QUANT16 takes 311 kB, a quarter of
-    the positions' bytes, and decodes at most 4.4e-7 off (Draco dequantizes in binary32: under a
-    hundredth of the grid's step, yet 0.2-0.45 dB in the viewer at fourth_st's transparent point,
-    where co-located Gaussians of different layers then sort differently, docs/LOG.md 21.1)."""
+    bit. In draco mode, Draco's codings of the same grid are tried too and the smallest stored
+    section kept: on fourth_st sequential Draco takes 232 kB where QUANT16 takes 311 kB, and
+    decodes at most 4.4e-7 off (Draco dequantizes in binary32: under a hundredth of the grid's
+    step, yet 0.2-0.45 dB in the viewer at fourth_st's transparent point, where co-located
+    Gaussians of different layers then sort differently, docs/LOG.md 21.1)."""
     xyz64 = np.asarray(xyz, np.float64)
-    exact = PatchPositions.quant16(xyz, steps, xyz64.min(axis=0))
+    exact = _in_input_order(PatchPositions.quant16(xyz, steps, xyz64.min(axis=0)), len(xyz))
     if mode != "draco" or not np.all(steps == steps[0]):
         return exact
     origin, bits = grid_for(xyz64, float(steps[0]))
-    encoded = encode_ordered(xyz, float(steps[0]), origin, bits)
-    if encoded is None or np.abs(encoded.positions - xyz64).max() > steps[0] / 16:
-        return exact  # Draco's binary32 grid must stay well inside the input's cells
-    draco = PatchPositions.draco(encoded.blob, encoded.positions)
-    stored = [len(zlib.compress(pack_positions(p))) for p in (draco, exact)]
-    return draco if stored[0] < stored[1] else exact
+    close = [c for c in _draco_candidates(xyz, float(steps[0]), origin, bits, as_set)
+             if np.abs(c.positions.decode() - xyz64[c.order]).max() <= steps[0] / 16]
+    return _smallest(close + [exact])  # Draco's binary32 grid must stay well inside the cells
 
 
-def encode_positions(xyz: np.ndarray, mode: str, bits: int = DEFAULT_POSITION_BITS
-                     ) -> PatchPositions:
-    """Positions of one layer in the configured mode (draco falls back to quant16 if Draco does not
-    keep the order, which the encoder checks by decoding). In draco and quant16 modes, positions
-    already on a coarser grid than ``bits`` asks for are stored on it
-    (:func:`input_grid`, :func:`on_input_grid`)."""
-    if mode in ("draco", "quant16") and len(xyz):
+def encode_positions(xyz: np.ndarray, mode: str, bits: int = DEFAULT_POSITION_BITS,
+                     as_set: bool = True) -> StoredPositions:
+    """Positions of one layer in the configured mode, and the order they are stored in.
+
+    In draco mode the smaller of Draco's sequential coding (input order) and, with ``as_set``, its
+    kd-tree coding (Draco's order) is kept; draco falls back to quant16 if Draco does not keep the
+    points, which the encoder checks by decoding. In draco and quant16 modes, positions already on
+    a coarser grid than ``bits`` asks for are stored on it (:func:`input_grid`,
+    :func:`on_input_grid`)."""
+    n = len(xyz)
+    if mode in ("draco", "quant16") and n:
         grid = input_grid(xyz, bits)
         if grid is not None:
-            return on_input_grid(xyz, grid, mode)
+            return on_input_grid(xyz, grid, mode, as_set)
     if mode == "draco":
         xyz = np.asarray(xyz, np.float64)
-        if len(xyz) == 0:
-            return PatchPositions.draco(b"", np.zeros((0, 3), np.float32))
+        if n == 0:
+            return _in_input_order(PatchPositions.draco(b"", np.zeros((0, 3), np.float32)), 0)
         origin, _ = grid_for(xyz, 1.0)
         span = float((xyz.max(axis=0) - origin).max())
         step = max(span, 1e-30) / ((1 << bits) - 1)
-        encoded = encode_ordered(xyz, step, origin, bits)
-        if encoded is not None:
-            return PatchPositions.draco(encoded.blob, encoded.positions)
+        candidates = _draco_candidates(xyz, step, origin, bits, as_set)
+        if candidates:
+            return _smallest(candidates)
         mode, bits = "quant16", min(bits, 16)
     if mode == "float16":
-        return PatchPositions.float16(xyz)
+        return _in_input_order(PatchPositions.float16(xyz), n)
     if mode == "float32":
-        return PatchPositions.float32(xyz)
+        return _in_input_order(PatchPositions.float32(xyz), n)
     if mode != "quant16":
         raise ValueError(f"unknown position mode {mode!r}")
     if not 1 <= bits <= 16:
         raise ValueError("position_bits must be in 1..16")
     xyz = np.asarray(xyz, np.float64)
-    if len(xyz) == 0:
-        return PatchPositions.quant16(xyz, 1.0, np.zeros(3))
+    if n == 0:
+        return _in_input_order(PatchPositions.quant16(xyz, 1.0, np.zeros(3)), 0)
     lo = xyz.min(axis=0).astype(np.float32)
     span = xyz.max(axis=0) - lo.astype(np.float64)
     levels = (1 << bits) - 1
     # The step is rounded to float32 upward so every position stays within the 16-bit range.
     step = np.maximum(np.nextafter((span / levels).astype(np.float32), np.float32(np.inf)),
                       np.float32(1e-30))
-    return PatchPositions.quant16(xyz, step, lo)
+    return _in_input_order(PatchPositions.quant16(xyz, step, lo), n)
 
 
 def train_codebook(values: np.ndarray, entry_dim: int, size: int, weights: np.ndarray | None,
@@ -352,7 +387,7 @@ class PatchEncoder:
         enc = PatchEncoder(config, seed)
         q = enc.quantize(cloud)                   # codebooks (k-means) and indices
         q.indices = enc.assign(cloud, q.codebooks)  # indices against given codebooks
-        out = enc.layer(cloud, q, importance)     # layers, Morton order within, positions coded
+        out = enc.layer(cloud, q, importance)     # layers, positions coded (in their order)
         out = enc.encode(cloud)                   # all of the above, importance measured
     """
 
@@ -463,7 +498,7 @@ class PatchEncoder:
     def layer(self, cloud: GaussianCloud, quantized: Quantized, importance: np.ndarray
               ) -> PatchEncoding:
         """Split ``cloud`` (with its ``quantized`` attributes) into layers of decreasing
-        ``importance`` (n,), sized by the config; Morton order within a layer; positions coded."""
+        ``importance`` (n,), sized by the config; positions coded (:meth:`layer_groups`)."""
         cfg = self.config
         if np.shape(importance) != (len(cloud),) or len(quantized) != len(cloud):
             raise ValueError("cloud, quantized and importance must describe the same Gaussians")
@@ -473,16 +508,18 @@ class PatchEncoder:
     def layer_groups(self, cloud: GaussianCloud, quantized: Quantized,
                      groups: list[np.ndarray]) -> PatchEncoding:
         """The encoding whose layers hold ``groups`` (indices into ``cloud``, first layer first);
-        Morton order within a layer, positions coded."""
+        Morton order within a layer (or the order Draco's kd-tree coding decodes), positions
+        coded."""
         cfg = self.config
         layers, orders = [], []
         for members in groups:
             if len(members):
                 members = members[np.argsort(morton_codes(cloud.means[members].astype(np.float64)),
                                              kind="stable")]
-            positions = encode_positions(cloud.means[members], cfg.position_mode,
-                                         cfg.stored_position_bits)
-            layers.append(PatchLayer(positions, quantized.subset(members).indices))
+            stored = encode_positions(cloud.means[members], cfg.position_mode,
+                                      cfg.stored_position_bits, cfg.positions_as_set)
+            members = members[stored.order]
+            layers.append(PatchLayer(stored.positions, quantized.subset(members).indices))
             orders.append(members)
         return PatchEncoding(quantized.codebooks, layers, orders, cfg.index_contexts, self.jobs)
 

@@ -154,7 +154,7 @@ def test_the_vectors_of_spec_1_1_1_pin_both_sides():
     assert all(outcomes[v].accepts for v in valid)
     assert {v: outcomes[v].error for v in invalid} == invalid
     assert all("zstd" in outcomes[v].needs for v in invalid if v.startswith("zstd"))
-    assert SUITE.spec_version == "1.2"  # the latest text revision the vectors follow
+    assert SUITE.spec_version == "1.2.1"  # the latest text revision the vectors follow
 
 
 # -------------------------------------------------------------------------------- coverage

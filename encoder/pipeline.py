@@ -163,11 +163,13 @@ class Encoded:
 
 def scene_writer(sh_degree: int, sketch: SketchOutcome, config: EncoderConfig,
                  source_name: str | None) -> SceneWriter:
-    """The writer of this encode's file: the sketch and the metadata fixed, any patch."""
+    """The writer of this encode's file: the sketch and the metadata fixed, any patch; each file
+    it writes records the box of its own Gaussians (``bounds``, for a viewer's first framing)."""
     metadata = {"encoder": "spcodec", "version": _version(), "source": source_name,
                 "up": config.up, "settings": config.to_json()}
     return SceneWriter(sh_degree, sketch.clusters, metadata,
-                       WriteOptions(codec=Codec[config.codec.upper()], gzip=config.gzip))
+                       WriteOptions(codec=Codec[config.codec.upper()], gzip=config.gzip,
+                                    bounds=True))
 
 
 def measure_importance(run: EncodeRun) -> np.ndarray:

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .attributes import PatchAttribute
+from .bounds import scene_bounds, scene_positions
 from .codecs import Compressor, compress, crc32, gzip_wrap, read_gzip_layer_ends
 from .container import (
     CONTEXTS_MINOR,
@@ -95,11 +96,16 @@ class EncodedScene:
 
 @dataclass
 class WriteOptions:
-    """How sections are compressed and whether the file is gzip-wrapped."""
+    """How sections are compressed, whether the file is gzip-wrapped, and whether the metadata
+    gets the scene's box."""
 
     codec: Codec = Codec.ZLIB
     level: int | None = None
     gzip: bool = False
+    bounds: bool = False
+    """Add ``bounds`` (spcodec/bounds.py: every layer's positions, [R-71]) to the metadata, for a
+    viewer to frame the whole scene from layer 0: the encoder's files do; hand-made ones, whose
+    bytes tests and conformance vectors fix, do not."""
 
 
 @dataclass
@@ -263,14 +269,15 @@ def gzip_file(written: WrittenFile) -> WrittenFile:
                                      stored_layer_ends=None if ends is None else tuple(ends)))
 
 
-def scene_sections(scene: EncodedScene, codec: Codec = Codec.ZLIB) -> tuple[list[SectionSpec],
-                                                                              list[LayerSpec]]:
-    """The sections and layers of a scene, in the normative order ([R-13], [R-14])."""
+def scene_sections(scene: EncodedScene, codec: Codec = Codec.ZLIB, bounds: bool = False
+                   ) -> tuple[list[SectionSpec], list[LayerSpec]]:
+    """The sections and layers of a scene, in the normative order ([R-13], [R-14]); with
+    ``bounds``, its metadata (when it has some) records the box of its positions."""
     table, draco, coeffs = pack_sketch(scene.sketch, scene.sh_degree)
     sections: list[SectionSpec] = []
     if scene.metadata is not None:
-        meta = json.dumps(scene.metadata, sort_keys=True, separators=(",", ":"),
-                          ensure_ascii=False).encode("utf-8")
+        meta = json.dumps(with_bounds(scene) if bounds else scene.metadata, sort_keys=True,
+                          separators=(",", ":"), ensure_ascii=False).encode("utf-8")
         sections.append(SectionSpec(SectionType.METADATA, 0, meta, codec, required=False))
     if scene.preview is not None:  # before the sketch, so that it arrives first (spec 7.4)
         sections.append(SectionSpec(SectionType.PREVIEW, 0, scene.preview.payload(), codec,
@@ -296,6 +303,13 @@ def scene_sections(scene: EncodedScene, codec: Codec = Codec.ZLIB) -> tuple[list
     return sections, layers
 
 
+def with_bounds(scene: EncodedScene) -> dict:
+    """The scene's metadata with ``bounds``: the box of every layer's decoded positions (none for
+    a scene without Gaussians)."""
+    box = scene_bounds(scene_positions(scene.sketch, (p.positions for p in scene.patch_layers)))
+    return dict(scene.metadata) if box is None else {**scene.metadata, "bounds": box}
+
+
 def stored_indices(patch: PatchLayer, scene: EncodedScene) -> bytes:
     """A layer's PATCH_ATTRIBUTES payload: its index columns, target columns as ranks
     ([R-52], [R-107])."""
@@ -315,7 +329,7 @@ def write_file(scene: EncodedScene, options: WriteOptions | None = None,
                compressor: Compressor = compress) -> WrittenFile:
     """:func:`build_bitstream` with the file's layout (section and layer extents)."""
     options = options or WriteOptions()
-    sections, layers = scene_sections(scene, options.codec)
+    sections, layers = scene_sections(scene, options.codec, options.bounds)
     written = assemble_file(sections, layers, scene.sh_degree, options.level,
                             compressor=compressor)
     return gzip_file(written) if options.gzip else written

@@ -363,23 +363,29 @@ def framed_share(camera: dict, points: np.ndarray, aspect: float) -> float:
     return float(inside.mean())
 
 
-def test_the_default_camera_frames_the_whole_scene_not_only_layer_0(tmp_path):
-    """The camera was framed on the first layer alone: a retrained guitar's 1,025 sketch Gaussians
-    left its neck and headstock off-screen. Here layer 0 is one small cluster in a corner of a
-    40-unit box that the patch layers fill; the file stores no box of the scene, so the page frames
-    layer 0 first and frames again as the layers reach out of the view: the finished page's camera
-    shows nearly all of the scene (layer 0's camera, a sliver of it)."""
-    require()
+def corner_scene(up: str = "+y"):
+    """Layer 0 one small cluster in a corner of a 40-unit box that two patch layers fill."""
     from spcodec.synthetic import random_cluster, random_codebooks, random_patch_layer
-    from spcodec.writer import EncodedScene, build_bitstream
+    from spcodec.writer import EncodedScene
 
     rng = np.random.default_rng(7)
     books = random_codebooks(rng, 0)
     layers = [random_patch_layer(rng, books, 1500) for _ in range(2)]
-    scene = EncodedScene(0, [random_cluster(rng, 0, points=200)], books, layers,
-                         {"up": "+y"})  # the world is the file's frame: no rotation to redo here
+    return EncodedScene(0, [random_cluster(rng, 0, points=200)], books, layers, {"up": up})
+
+
+def test_the_default_camera_frames_the_whole_scene_not_only_layer_0(tmp_path):
+    """The camera was framed on the first layer alone: a retrained guitar's 1,025 sketch Gaussians
+    left its neck and headstock off-screen. Here layer 0 is one small cluster in a corner of a
+    40-unit box that the patch layers fill; this file's metadata has no box of the scene (an older
+    file), so the page frames layer 0 first and frames again as the layers reach out of the view:
+    the finished page's camera shows nearly all of the scene (layer 0's camera, a sliver of it)."""
+    require()
+    from spcodec.writer import build_bitstream
+
     spc = tmp_path / "corner.spc"
-    spc.write_bytes(build_bitstream(scene))
+    spc.write_bytes(build_bitstream(corner_scene()))  # the world is the file's frame: +y up
+    assert "bounds" not in spcodec.inspect(spc).metadata
     points = spcodec.decode(spc).means
     layer0 = len(spcodec.decode(spc, max_layer=0).means)
     assert np.ptp(points[:layer0], axis=0).max() < 0.2 * np.ptp(points, axis=0).min()
@@ -390,4 +396,30 @@ def test_the_default_camera_frames_the_whole_scene_not_only_layer_0(tmp_path):
     aspect = 320 / 240
     assert framed_share(alone["camera"], points, aspect) < 0.5  # layer 0's framing: a part
     assert framed_share(final["camera"], points, aspect) > 0.95
-    assert final["cameraFramings"] >= 2
+    assert final["cameraFramings"] >= 2 and final["framedOn"] == "centres"
+
+
+@pytest.mark.parametrize("up", ["+y", "+z"])
+def test_a_file_with_its_scene_box_is_framed_whole_from_layer_0_and_never_again(tmp_path, up):
+    """The same corner scene written with the box of all its layers in its metadata (``bounds``, as
+    ``spcodec encode`` writes it): the page frames the whole scene as soon as layer 0 is in, so
+    layer 0 alone (``maxLayer=0``) already shows nearly all of it, and the later layers never move
+    the camera: one framing, the same camera. A +z up file is framed in its upright world."""
+    require()
+    from spcodec.writer import WriteOptions, build_bitstream
+
+    spc = tmp_path / "boxed.spc"
+    spc.write_bytes(build_bitstream(corner_scene(up), WriteOptions(bounds=True)))
+    assert "bounds" in spcodec.inspect(spc).metadata
+    points = spcodec.decode(spc).means
+    if up == "+z":  # the page's world: +Z turned to +Y (x, y, z) -> (x, z, -y)
+        points = np.stack([points[:, 0], points[:, 2], -points[:, 1]], axis=1)
+    with serving([spc]) as base:
+        alone = visit(page_url(base, spc, maxLayer=0), ("complete", None))["state"]
+        final = visit(page_url(base, spc), ("complete", None))["state"]
+    aspect = 320 / 240
+    assert alone["framedOn"] == final["framedOn"] == "bounds"
+    assert framed_share(alone["camera"], points, aspect) > 0.95
+    assert alone["cameraFramings"] == final["cameraFramings"] == 1
+    assert final["layersShown"] == 3 and final["gaussians"] == len(points)
+    assert np.allclose(final["camera"]["position"], alone["camera"]["position"])

@@ -8,8 +8,10 @@
 //   maxLayer=K         fetch and show layers 0..K only (.spc)
 //   width=W&height=H   fixed canvas resolution (default: fill the window)
 //   cam=x,y,z&target=x,y,z&fov=DEG   camera, in the upright world (+Y up; default: framed on
-//                      the scene, and framed again as layers reach out of the view, until the user
-//                      moves the camera: the file stores no box of the whole scene)
+//                      the whole scene's box from the file's metadata (`bounds`) as soon as the
+//                      preview or layer 0 is in, and left there; for a file without one, framed on
+//                      what has arrived and again as layers reach out of the view; either way
+//                      never again once the user moves the camera)
 //   up=AXIS            the scene's up axis where the file does not store one (a PLY, an older
 //                      .spc): -y (default, COLMAP-derived scenes), +z, or a vector such as 0,0,1.
 //                      Every scene is stood upright in a +Y-up world: an .spc by the axis its
@@ -32,7 +34,7 @@ import * as pc from 'playcanvas';
 import { browserDraco } from '../../src/draco-browser.js';
 import { createApp, frameWatcher } from './engine.js';
 import { rotatePositions, upRotation } from '../../src/orientation.js';
-import { SceneFraming, frameBounds } from './splats.js';
+import { SceneFraming, frameBounds, metadataBounds, turnBounds } from './splats.js';
 import { showTileset, tilesetLines } from './tileset.js';
 
 const params = new URLSearchParams(location.search);
@@ -62,7 +64,8 @@ const state = {
   bytesWhenFirstPictureShown: null,
   renderer: null,
   camera: null,  // {position, target, fov} once placed: pass it back in the URL to reproduce a view
-  cameraFramings: 0,  // how many times the default framing placed the camera (it follows the layers)
+  cameraFramings: 0,  // times the default framing placed the camera (1 on a file's bounds; else per layer)
+  framedOn: null,  // what the default framing used: 'bounds' (the file's metadata) or 'centres'
   sceneUp: null,  // the scene's up axis as used (stored in the file, from the URL, or the default)
   prefixPsnr: null,  // what the encoder measured per layer prefix (metadata stats.prefix_psnr)
   prefixLine: null,  // the on-screen line made from it for the prefix shown, or null
@@ -175,15 +178,19 @@ function createCamera(app) {
 const UP = [0, 1, 0];
 
 /**
- * Where the camera looks: as the URL says (`cam`, `target`, `fov`), or framed on the scene seen so
- * far, again each time a part of it (the preview, a layer) reaches out of the view, until the
- * user turns or zooms. The world is +Y up: scenes are stood upright before they are shown.
+ * Where the camera looks: as the URL says (`cam`, `target`, `fov`); or framed on the whole scene's
+ * box when the file's metadata gives one, once, as the first part (the preview or layer 0) comes
+ * in; or else framed on the scene seen so far, again each time a part of it (the preview, a layer)
+ * reaches out of the view. Never once the user turns or zooms. The world is +Y up: scenes are
+ * stood upright before they are shown.
  */
 class CameraRig {
   constructor(camera) {
     this.camera = camera;
     this.fov = Number(params.get('fov')) || 50;
     this.framing = new SceneFraming();
+    /** @type {{centre: number[], radius: number}|null} the whole scene's bounds, from the file */
+    this.sceneBounds = null;
     /** the orbit's centre, moved with each framing */
     this.target = new pc.Vec3();
     /** the user has moved the camera: framing stops */
@@ -201,12 +208,32 @@ class CameraRig {
    * @param {number[]} [rotation]  the quaternion that stands them upright (default: none)
    */
   see(positions, rotation = null) {
-    if (this.fixed || this.moved || positions.length < 3) return;
+    if (this.fixed || this.moved) return;
+    if (this.sceneBounds) {  // the file said where all of it lies: framed once, on that
+      if (state.framedOn === 'bounds') return;
+      this.aim(frameBounds(turnBounds(this.sceneBounds, rotation), UP, this.fov));
+      state.framedOn = 'bounds';
+      state.cameraFramings++;
+      return;
+    }
+    if (positions.length < 3) return;
     const toWorld = rotation ? (sampled) => rotatePositions(sampled, rotation) : undefined;
     const bounds = this.framing.add(positions, toWorld);
     if (!bounds) return;
     this.aim(frameBounds(bounds, UP, this.fov));
+    state.framedOn = 'centres';
     state.cameraFramings++;
+  }
+
+  /**
+   * The whole scene's bounds as the file's metadata gives them (see metadataBounds), in the file's
+   * coordinates: the first part to arrive is framed on them (turned upright by its rotation)
+   * rather than on its own centres, and no later part moves the camera. Null: framing follows the
+   * centres. Only before the first part: the file's header comes first.
+   * @param {{centre: number[], radius: number}|null} bounds
+   */
+  expect(bounds) {
+    if (state.framedOn == null) this.sceneBounds = bounds;
   }
 
   /** @param {{position: number[], target: number[], up: number[], fov: number}} view */
@@ -326,7 +353,8 @@ async function showSpc(app, rig, whenShown) {
     showProgress();
   };
 
-  const result = await streamLayersInto(loadSpc, app, maxLayer, { addLayer, addPreview, dropPreview });
+  const result = await streamLayersInto(loadSpc, app, maxLayer,
+    { addLayer, addPreview, dropPreview, expectBounds: (bounds) => rig.expect(bounds) });
   state.mode = result.mode;
   state.totalBytes = state.totalBytes ?? result.fileSize;
   if (Number.isFinite(maxLayer)) {
@@ -358,8 +386,10 @@ function keepLayerPicture(event, layersInPicture) {
     bytesLoaded: state.bytesLoaded, tShown: event.tShown, png: canvas.toDataURL('image/png') });
 }
 
-/** The package's PlayCanvas loader, with the page's bookkeeping of requests and bytes. */
-async function streamLayersInto(loadSpc, app, maxLayer, { addLayer, addPreview, dropPreview }) {
+/** The package's PlayCanvas loader, with the page's bookkeeping of requests and bytes; the file's
+ * box of the scene, if its metadata has one, goes to `expectBounds` before any layer. */
+async function streamLayersInto(loadSpc, app, maxLayer, { addLayer, addPreview, dropPreview,
+  expectBounds }) {
   return loadSpc(app, pc, src, {
     maxLayer, up: params.get('up'),
     preview: params.get('preview') !== '0',
@@ -379,6 +409,7 @@ async function streamLayersInto(loadSpc, app, maxLayer, { addLayer, addPreview, 
       state.layerCount = info.layers.length;
       state.sceneUp = info.metadata?.up ?? params.get('up') ?? '-y';
       state.prefixPsnr = info.metadata?.stats?.prefix_psnr ?? null;
+      expectBounds(metadataBounds(info.metadata));
     },
     onProgress: (bytes) => {
       state.bytesLoaded = bytes;

@@ -1,5 +1,8 @@
 // A camera that frames a scene (the decoder's arrays become PlayCanvas's in the package's
-// PlayCanvas loader, web/loaders/playcanvas.js).
+// PlayCanvas loader, web/loaders/playcanvas.js): on the box a file's metadata gives of the whole
+// scene, or on the decoded centres as they arrive.
+
+import { rotatePositions } from '../../src/orientation.js';
 
 /**
  * Robust extent of splat centres: the 2nd..98th percentile box of each axis (floaters and far
@@ -23,9 +26,47 @@ export function robustBounds(positions) {
     lo.push(values[Math.floor(0.02 * (values.length - 1))]);
     hi.push(values[Math.ceil(0.98 * (values.length - 1))]);
   }
+  return sphereOf(lo, hi);
+}
+
+/** The sphere framing uses for the box `lo`..`hi`: its centre, half its diagonal. */
+function sphereOf(lo, hi) {
   const centre = lo.map((v, i) => (v + hi[i]) / 2);
   const radius = Math.max(1e-6, Math.hypot(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]) / 2);
   return { centre, radius };
+}
+
+/**
+ * The whole scene's bounds from a file's metadata (`bounds`, spec [R-71], written by `spcodec
+ * encode`): its `robust` box, the 2nd..98th percentile of each axis of every layer's centres (what
+ * robustBounds takes of the centres seen), else its full `min`/`max` box; in the file's own
+ * coordinates. Null for metadata without a well-formed box: metadata is untrusted.
+ * @param {unknown} metadata  the file's metadata object (or null)
+ * @returns {{centre: number[], radius: number}|null}
+ */
+export function metadataBounds(metadata) {
+  const box = /** @type {any} */ (metadata)?.bounds;
+  for (const corners of [box?.robust, box]) {
+    const lo = corners?.min, hi = corners?.max;
+    if (isPoint(lo) && isPoint(hi) && lo.every((v, i) => v <= hi[i])) return sphereOf(lo, hi);
+  }
+  return null;
+}
+
+function isPoint(value) {
+  return Array.isArray(value) && value.length === 3 && value.every(Number.isFinite);
+}
+
+/**
+ * Bounds turned by the quaternion `rotation` (x, y, z, w) that stands the scene upright: the
+ * centre moves, the radius stays (a turned sphere is the same sphere).
+ * @param {{centre: number[], radius: number}} bounds
+ * @param {number[]|null} rotation
+ */
+export function turnBounds(bounds, rotation) {
+  if (!rotation) return bounds;
+  return { centre: [...rotatePositions(Float64Array.from(bounds.centre), rotation)],
+    radius: bounds.radius };
 }
 
 /** Most sampled centres a framing keeps (robustBounds reads 20,000 of them). */
@@ -36,9 +77,10 @@ const MAX_SAMPLES = 40000;
 const REFIT_SLACK = 0.1;
 
 /**
- * The default framing of a scene that arrives in parts (the preview, then layer by layer): the
- * format stores no box of the whole scene (the header has counts and offsets; the sketch clusters'
- * frames cover layer 0 only), and layer 0 may hold one corner of it, so each part's centres join an
+ * The default framing of a scene that arrives in parts (the preview, then layer by layer) when its
+ * file's metadata gives no box of the whole scene (older files, or files not written by the
+ * encoder: see metadataBounds): the header has counts and offsets, the sketch clusters' frames
+ * cover layer 0 only, and layer 0 may hold one corner of it, so each part's centres join an
  * evenly spaced sample of all of them, and the framing follows that sample's robust bounds when
  * they reach out of the sphere framed so far.
  */

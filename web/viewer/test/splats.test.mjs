@@ -3,7 +3,8 @@
 import assert from 'node:assert/strict';
 import test from 'node:test';
 import { plyProperties } from '../../loaders/playcanvas.js';
-import { SceneFraming, frameBounds, robustBounds } from '../src/splats.js';
+import { rotatePositions } from '../../src/orientation.js';
+import { SceneFraming, frameBounds, metadataBounds, robustBounds, turnBounds } from '../src/splats.js';
 
 test('plyProperties splits interleaved arrays and writes f_rest channel-major', () => {
   const n = 2, shDegree = 1, k = 3;
@@ -98,4 +99,35 @@ test('SceneFraming keeps the framing of a preview of the whole scene, and sample
   const moved = new SceneFraming().add(preview, (p) => p.map((v, i) => (i % 3 === 1 ? v + 100 : v)));
   assert.ok(Math.abs(moved.centre[1] - 100) < 1, 'toWorld turns the sampled centres');
   assert.equal(new SceneFraming().add(new Float32Array(0)), null);
+});
+
+test('metadataBounds reads the robust box of the metadata, else its full box, and nothing malformed', () => {
+  const robust = metadataBounds({ bounds: { min: [-100, -1, -1], max: [100, 1, 1],
+    robust: { min: [0, 0, 0], max: [2, 4, 4], percentiles: [2, 98] } } });
+  assert.deepEqual(robust.centre, [1, 2, 2]);
+  assert.equal(robust.radius, 3);  // half the diagonal of 2 x 4 x 4
+  const full = metadataBounds({ bounds: { min: [0, 0, 0], max: [0, 6, 8] } });
+  assert.deepEqual(full, { centre: [0, 3, 4], radius: 5 });
+  for (const bad of [null, {}, { bounds: 7 }, { bounds: { min: [0, 0], max: [1, 1] } },
+    { bounds: { min: [0, 0, 0], max: [1, 'a', 1] } }, { bounds: { min: [2, 0, 0], max: [1, 1, 1] } },
+    { bounds: { robust: { min: [0, 0, 0], max: [1, 1, Infinity] } } }]) {
+    assert.equal(metadataBounds(bad), null, JSON.stringify(bad));
+  }
+  const point = metadataBounds({ bounds: { min: [1, 1, 1], max: [1, 1, 1] } });
+  assert.ok(point.radius > 0, 'a point still gives a camera distance');
+});
+
+test('the metadata box frames the whole scene from layer 0, turned upright by the file\'s rotation', () => {
+  const whole = boxOf(20000, [0, 0, 0], [10, 10, 10], 4);
+  const lo = [0, 1, 2].map((a) => Math.min(...whole.filter((_, i) => i % 3 === a)));
+  const hi = [0, 1, 2].map((a) => Math.max(...whole.filter((_, i) => i % 3 === a)));
+  const bounds = metadataBounds({ bounds: { min: lo, max: hi } });
+  assert.ok(framedShare(frameBounds(bounds), whole) > 0.95);
+  const zUp = [-Math.SQRT1_2, 0, 0, Math.SQRT1_2];  // +Z to +Y: a quarter turn about -X
+  const turned = turnBounds(bounds, zUp);
+  assert.equal(turned.radius, bounds.radius);
+  const expected = [...rotatePositions(Float32Array.from(bounds.centre), zUp)];
+  turned.centre.forEach((c, i) => assert.ok(Math.abs(c - expected[i]) < 1e-5));
+  assert.ok(framedShare(frameBounds(turned), rotatePositions(whole, zUp)) > 0.95);
+  assert.equal(turnBounds(bounds, null), bounds);
 });

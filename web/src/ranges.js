@@ -7,7 +7,8 @@
 // and stops after the last layer it was asked for. Every byte goes through the streaming decoder,
 // which checks it. A gzip-wrapped file is fetched the same way when its wrapper records where each
 // layer ends ([R-83]; `inspect` reports those offsets), else read as one stream, as is a file from
-// a server that ignores ranges (200 instead of 206).
+// a server that ignores ranges (200 instead of 206), whose head is planned on all the same (the
+// caller learns the up axis and the scene's box before any layer).
 //
 // An .spc embedded in a .glb (`spcodec embed`) streams the same way from where it lies in the file
 // (`streamScene`): its offset comes from the .glb's header and JSON chunk.
@@ -62,8 +63,10 @@ export async function streamSpc(url, { sink, planLayers, maxLayer = Infinity, fe
   const fetchRange = (from, to, log) => request(fetchImpl, url, from, to, log, base);
   const firstLast = Math.min(FIRST_REQUEST_BYTES, length ?? Infinity) - 1;
   const first = await fetchRange(0, firstLast, onRequest);
-  if (first.status === 200) {  // the server ignores ranges: the whole file comes
-    const bytes = await pump(first, sink, length ?? Infinity, base);
+  if (first.status === 200) {  // the server ignores ranges: the whole file comes, planned on its head
+    const planned = headFirst(sink, planLayers);
+    const bytes = await pump(first, planned.sink, length ?? Infinity, base);
+    await planned.flush();
     return { mode: 'stream', fileSize: length ?? lengthOf(first), bytes };
   }
   const size = length ?? first.range.size;
@@ -76,12 +79,7 @@ export async function streamSpc(url, { sink, planLayers, maxLayer = Infinity, fe
       head = concat(head, more);
     }
   }
-  let layers = null;
-  try {  // before the bytes go on: what the header says (the up axis) applies to layers in them
-    layers = planLayers(head).layers;
-  } catch {
-    // Too short for a header block, or not an .spc: the decoder says why as the rest arrives.
-  }
+  const layers = tryPlan(planLayers, head);
   await sink(head);
   let offset = head.length;
   if (!layers || layers.some((layer) => layer.endOffset == null)) {
@@ -103,6 +101,71 @@ export async function streamSpc(url, { sink, planLayers, maxLayer = Infinity, fe
     offset += await pump(await fetchRange(offset, size - 1, onRequest), sink, Infinity);
   }
   return { mode: 'ranges', fileSize: size, bytes: offset };
+}
+
+/**
+ * What the header says (its layers; for the caller, the up axis and the scene's box in the
+ * metadata), before the bytes go on: it applies to the layers in them. Null when the bytes are
+ * too short for a header block or not an .spc: the decoder says why as the rest arrives.
+ * @param {(header: Uint8Array) => {layers: {index: number, endOffset: number|null}[]}} planLayers
+ * @param {Uint8Array} head
+ */
+function tryPlan(planLayers, head) {
+  try {
+    return planLayers(head).layers;
+  } catch {
+    return null;
+  }
+}
+
+/**
+ * A sink that holds the first bytes of a whole-file answer until they reach as far as a first
+ * range request would (the header block, when longer), plans on them as the range path does,
+ * then passes them and everything after straight on; `flush` plans on what came when the file
+ * was shorter.
+ * @param {(chunk: Uint8Array) => Promise<void>} sink
+ * @param {(header: Uint8Array) => {layers: {index: number, endOffset: number|null}[]}} planLayers
+ */
+function headFirst(sink, planLayers) {
+  /** @type {Uint8Array[]|null} the chunks held so far; null once planned */
+  let held = [];
+  let count = 0;
+  let need = FIRST_REQUEST_BYTES;  // until the fixed header is in and says more
+  const release = async () => {
+    const chunks = /** @type {Uint8Array[]} */ (held);
+    held = null;
+    const head = chunks.length === 1 ? chunks[0] : chunks.reduce(concat, new Uint8Array(0));
+    tryPlan(planLayers, head);
+    await sink(head);
+  };
+  return {
+    sink: async (chunk) => {
+      if (held === null) return sink(chunk);
+      const before = count;
+      held.push(chunk);
+      count += chunk.length;
+      if (before < FIXED_HEADER_BYTES && count >= FIXED_HEADER_BYTES) {
+        need = headBytes(held.length === 1 ? held[0] : held.reduce(concat, new Uint8Array(0)));
+      }
+      if (count >= need) await release();
+    },
+    flush: async () => {
+      if (held !== null && count) await release();
+    },
+  };
+}
+
+/** The most a whole-file answer's head is held for planning: a header block longer than this
+ * (the limits allow far less in practice) is planned on what came, as a cut one would be. */
+const MAX_HELD_HEAD = 1 << 20;
+
+/** How many bytes of a file's start the planner needs: a first request's, or the whole header
+ * block of a plain .spc whose header says it is longer (at most MAX_HELD_HEAD). */
+function headBytes(start) {
+  const gzip = start.length >= 2 && start[0] === GZIP_MAGIC[0] && start[1] === GZIP_MAGIC[1];
+  if (gzip || start.length < FIXED_HEADER_BYTES) return FIRST_REQUEST_BYTES;
+  const headerSize = new DataView(start.buffer, start.byteOffset, start.byteLength).getUint32(16, true);
+  return Math.max(FIRST_REQUEST_BYTES, Math.min(headerSize, MAX_HELD_HEAD));
 }
 
 /** Bytes `first..last` of the stream that starts at byte `base` of the file at `url`. Offsets

@@ -68,14 +68,34 @@ test('a header block longer than the first request is completed before planning'
   assert.ok(Buffer.from(file).equals(out.bytes()));
 });
 
-test('a server without ranges is read as one stream', async () => {
-  const ends = [100_000, 200_000];
-  const file = fakeFile(300, ends);
-  const { fetchImpl, log } = fakeServer(file, { ranges: false });
+test('a server without ranges is read as one stream, planned on its head first', async () => {
+  for (const [headerSize, chunk] of [[300, 1000], [300, 7], [10_000, 1000], [10_000, 30]]) {
+    const ends = [100_000, 200_000];
+    const file = fakeFile(headerSize, ends);
+    const { fetchImpl, log } = fakeServer(file, { ranges: false, chunk });
+    const out = collector();
+    const planned = [];
+    const planLayers = (head) => {
+      planned.push(out.bytes().length);  // what the sink had been given before the plan
+      return plan(ends)(head);
+    };
+    const result = await streamSpc('/x.spc', { sink: out.sink, planLayers, fetchImpl });
+    assert.equal(result.mode, 'stream');
+    assert.equal(log.length, 1);
+    assert.deepEqual(planned, [0], 'planned once, on the whole header block, before any byte went on');
+    assert.ok(Buffer.from(file).equals(out.bytes()));
+  }
+});
+
+test('a file shorter than a first request, from a server without ranges, is planned once', async () => {
+  const file = fakeFile(100, [1_500]);
+  const { fetchImpl } = fakeServer(file, { ranges: false, chunk: 400 });
   const out = collector();
-  const result = await streamSpc('/x.spc', { sink: out.sink, planLayers: plan(ends), fetchImpl });
-  assert.equal(result.mode, 'stream');
-  assert.equal(log.length, 1);
+  const heads = [];
+  const result = await streamSpc('/x.spc', { sink: out.sink, fetchImpl,
+    planLayers: (head) => { heads.push(head.length); return plan([1_500])(head); } });
+  assert.equal(result.bytes, 1_500);
+  assert.deepEqual(heads, [1_500]);
   assert.ok(Buffer.from(file).equals(out.bytes()));
 });
 

@@ -26,6 +26,20 @@ test('every layer arrives in order and adds up to the whole decode', async () =>
   }
 });
 
+test('a server that ignores ranges still gives the header first: onInfo before any layer', async () => {
+  const file = fixture('sh3-zlib-quant16');
+  for (const chunk of [97, 5000]) {
+    const { fetchImpl } = fakeServer(file, { ranges: false, chunk });
+    const events = [];
+    const result = await streamLayers('/scene.spc', { fetchImpl,
+      onInfo: (info) => { events.push(`info ${info.layers.length}`); },
+      onLayer: (l) => { events.push(`layer ${l.index}`); } });
+    assert.equal(result.mode, 'stream');
+    assert.deepEqual(events, ['info 4', 'layer 0', 'layer 1', 'layer 2', 'layer 3']);
+    assert.equal(result.info.layers.length, 4);
+  }
+});
+
 test('the up axis comes from the file, else from the caller; a .glb says it by its node', async () => {
   const file = fixture('sh2-zlib-draco');
   const { fetchImpl } = fakeServer(file);

@@ -1,9 +1,13 @@
 """Patch positions coded as a set (Draco's kd-tree coding, spec 1.2.1 [R-58]) against sequential
 coding of the same grid, on the shared scenes, in one run (issue 37).
 
-For each scene the same no-retrain preset is encoded twice, ``PatchConfig.positions_as_set`` on
-and off; the two files decode to the same Gaussians in another order (checked: the rows sorted
-agree exactly), so they render alike and only their bytes differ. Prints each file's bytes, its
+For each scene the same no-retrain preset is encoded twice, with ``PatchConfig.set_coding_saving``
+as configured and off (None). Where the two decode to the same Gaussians in another order (the
+sorted rows agree exactly: "same Gaussians"), they render alike and only their bytes differ;
+where not, the smaller patch let the sketch keep other clusters within its share of the file
+(DECISIONS D-10), or a layer on the input's grid took Draco's binary32 grid instead of exact
+QUANT16 (patch.on_input_grid), and the viewer judges the two files
+(``../shared/tools/two-framings.sh``). Prints each file's bytes, its
 PATCH_POSITIONS bytes and the change, and keeps the files in --workdir (for
 ``bench/bench_web_decode.py --extra LABEL=SCENE:FILE``, which times both decoders on them).
 
@@ -55,9 +59,9 @@ def measure(name: str, preset: str, workdir: Path) -> dict:
         base = dataclasses.replace(base, up=UP[name])
     out = {"scene": name, "gaussians": len(cloud), "preset": preset}
     files = {}
-    for as_set in (False, True):
+    for as_set, saving in ((False, None), (True, base.patch.set_coding_saving)):
         config = dataclasses.replace(base, patch=dataclasses.replace(base.patch,
-                                                                     positions_as_set=as_set))
+                                                                     set_coding_saving=saving))
         start = time.process_time()
         data = encode(cloud, config).data
         label = "set" if as_set else "sequential"

@@ -403,7 +403,7 @@ def position_options(scene: GaussianCloud, rows: np.ndarray, config: EncoderConf
     rendered: dict[bytes, float] = {}  # the MSE of each distinct set of decoded positions
     for bits in allocation.position_bits:
         stored = encode_positions(scene.means[order], config.patch.position_mode, bits,
-                                  config.patch.positions_as_set)
+                                  config.patch.set_coding_saving)
         decoded = stored.positions.decode()
         # positions already on a coarser grid are stored on it whatever the bits asked
         # (:func:`.patch.input_grid`): those grids decode alike and render alike

@@ -360,9 +360,10 @@ class PatchConfig:
     #: None: :data:`DEFAULT_POSITION_BITS`, except for a retrained patch, where the encoder takes
     #: :data:`RETRAINED_POSITION_BITS` over the scene's robust extent (see that constant).
     position_bits: int | None = None
-    #: In draco mode, also code each layer's positions as a set (Draco's kd-tree mode, the layer
-    #: in Draco's order, [R-58]) and keep whichever coding is smaller (DECISIONS D-29).
-    positions_as_set: bool = True
+    #: In draco mode, code a layer's positions as a set (Draco's kd-tree mode, the layer in
+    #: Draco's order, [R-58]) where that saves at least this many bits per Gaussian over
+    #: sequential coding, whose blobs decode faster; None: never (DECISIONS D-29).
+    set_coding_saving: float | None = 2.0
     #: Number of patch layers (>= 1).
     layers: int = 3
     #: Share of the patch Gaussians in each layer, most important first (renormalized). The first

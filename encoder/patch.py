@@ -125,16 +125,18 @@ def _in_input_order(positions: PatchPositions, n: int) -> StoredPositions:
     return StoredPositions(positions, np.arange(n, dtype=np.int64))
 
 
-def _draco_candidates(xyz: np.ndarray, step: float, origin: np.ndarray, bits: int, as_set: bool
-                      ) -> list[StoredPositions]:
-    """Draco's sequential coding of the grid and, with ``as_set``, its kd-tree coding of the same
-    grid (the layer reordered as Draco decodes it, :func:`.draco.encode_as_set`)."""
+def _draco_candidates(xyz: np.ndarray, step: float, origin: np.ndarray, bits: int,
+                      set_saving: float | None) -> list[StoredPositions]:
+    """Draco's sequential coding of the grid and its kd-tree coding of the same grid (the layer
+    reordered as Draco decodes it, :func:`.draco.encode_as_set`) where that saves at least
+    ``set_saving`` bits per point (None: never): a kd-tree blob decodes more slowly."""
     encoded = encode_ordered(xyz, step, origin, bits)
     if encoded is None:
         return []
     out = [_in_input_order(PatchPositions.draco(encoded.blob, encoded.positions), len(xyz))]
-    unordered = encode_as_set(xyz, encoded, step, origin, bits) if as_set else None
-    if unordered is not None:
+    unordered = None if set_saving is None else encode_as_set(xyz, encoded, step, origin, bits)
+    if unordered is not None and \
+            8 * (len(encoded.blob) - len(unordered.blob)) >= set_saving * len(xyz):
         out.append(StoredPositions(PatchPositions.draco(unordered.blob, unordered.positions),
                                    unordered.order))
     return out
@@ -146,7 +148,7 @@ def _smallest(candidates: list[StoredPositions]) -> StoredPositions:
     return candidates[int(np.argmin(sizes))]
 
 
-def on_input_grid(xyz: np.ndarray, steps: np.ndarray, mode: str, as_set: bool = True
+def on_input_grid(xyz: np.ndarray, steps: np.ndarray, mode: str, set_saving: float | None = 0.0
                   ) -> StoredPositions:
     """Positions that lie on the power-of-two grid of ``steps`` (:func:`input_grid`), stored on it.
 
@@ -161,25 +163,25 @@ def on_input_grid(xyz: np.ndarray, steps: np.ndarray, mode: str, as_set: bool = 
     if mode != "draco" or not np.all(steps == steps[0]):
         return exact
     origin, bits = grid_for(xyz64, float(steps[0]))
-    close = [c for c in _draco_candidates(xyz, float(steps[0]), origin, bits, as_set)
+    close = [c for c in _draco_candidates(xyz, float(steps[0]), origin, bits, set_saving)
              if np.abs(c.positions.decode() - xyz64[c.order]).max() <= steps[0] / 16]
     return _smallest(close + [exact])  # Draco's binary32 grid must stay well inside the cells
 
 
 def encode_positions(xyz: np.ndarray, mode: str, bits: int = DEFAULT_POSITION_BITS,
-                     as_set: bool = True) -> StoredPositions:
+                     set_saving: float | None = 0.0) -> StoredPositions:
     """Positions of one layer in the configured mode, and the order they are stored in.
 
-    In draco mode the smaller of Draco's sequential coding (input order) and, with ``as_set``, its
-    kd-tree coding (Draco's order) is kept; draco falls back to quant16 if Draco does not keep the
-    points, which the encoder checks by decoding. In draco and quant16 modes, positions already on
-    a coarser grid than ``bits`` asks for are stored on it (:func:`input_grid`,
-    :func:`on_input_grid`)."""
+    In draco mode Draco's sequential coding (input order) is kept, or its kd-tree coding (Draco's
+    order) where that saves at least ``set_saving`` bits per point (None: never); draco falls back
+    to quant16 if Draco does not keep the points, which the encoder checks by decoding. In draco
+    and quant16 modes, positions already on a coarser grid than ``bits`` asks for are stored on it
+    (:func:`input_grid`, :func:`on_input_grid`)."""
     n = len(xyz)
     if mode in ("draco", "quant16") and n:
         grid = input_grid(xyz, bits)
         if grid is not None:
-            return on_input_grid(xyz, grid, mode, as_set)
+            return on_input_grid(xyz, grid, mode, set_saving)
     if mode == "draco":
         xyz = np.asarray(xyz, np.float64)
         if n == 0:
@@ -187,7 +189,7 @@ def encode_positions(xyz: np.ndarray, mode: str, bits: int = DEFAULT_POSITION_BI
         origin, _ = grid_for(xyz, 1.0)
         span = float((xyz.max(axis=0) - origin).max())
         step = max(span, 1e-30) / ((1 << bits) - 1)
-        candidates = _draco_candidates(xyz, step, origin, bits, as_set)
+        candidates = _draco_candidates(xyz, step, origin, bits, set_saving)
         if candidates:
             return _smallest(candidates)
         mode, bits = "quant16", min(bits, 16)
@@ -517,7 +519,7 @@ class PatchEncoder:
                 members = members[np.argsort(morton_codes(cloud.means[members].astype(np.float64)),
                                              kind="stable")]
             stored = encode_positions(cloud.means[members], cfg.position_mode,
-                                      cfg.stored_position_bits, cfg.positions_as_set)
+                                      cfg.stored_position_bits, cfg.set_coding_saving)
             members = members[stored.order]
             layers.append(PatchLayer(stored.positions, quantized.subset(members).indices))
             orders.append(members)

@@ -177,14 +177,16 @@ def encode_as_set(points: np.ndarray, ordered: OrderedBlob, step: float, origin:
     A layer's order is free ([R-58]): coding positions as a set spends no bits on their order, 14 %
     fewer bytes on real trained scenes at 14 bits. Both of Draco's modes quantize alike, so the
     decoded points are the sequential blob's decoded points in another order; pairing equal rows
-    gives the exact permutation. None when Draco merged coincident inputs or the two disagree.
+    gives the exact permutation. Draco's kd-tree coder merges coincident inputs (not points that
+    merely share a cell), so twins go in a few units in the last place apart (:func:`apart`); None
+    when Draco merged points all the same or the two codings disagree.
     """
     import DracoPy
 
     points = np.asarray(points, dtype=np.float32)
     if len(points) == 0:
         return None
-    blob = DracoPy.encode(points, quantization_bits=bits, compression_level=compression_level,
+    blob = DracoPy.encode(apart(points), quantization_bits=bits, compression_level=compression_level,
                           preserve_order=False, quantization_range=step * ((1 << bits) - 1),
                           quantization_origin=np.asarray(origin, np.float64).tolist())
     decoded = np.asarray(DracoPy.decode(blob).points, dtype=np.float32).reshape(-1, 3)
@@ -197,3 +199,21 @@ def encode_as_set(points: np.ndarray, ordered: OrderedBlob, step: float, origin:
     order = np.empty(len(points), np.int64)
     order[by_decoded] = by_row
     return SetBlob(blob, decoded, order)
+
+
+def apart(points: np.ndarray) -> np.ndarray:
+    """``points`` (float32) with every repeat of a row moved along x by as many units in the last
+    place as earlier copies it has: no two rows coincide, and each stays in its grid cell unless
+    it sat on a cell's edge (then the pairing of :func:`encode_as_set` notices)."""
+    _, inverse, counts = np.unique(points, axis=0, return_inverse=True, return_counts=True)
+    if counts.max(initial=1) == 1:
+        return points
+    inverse = inverse.reshape(-1)
+    order = np.argsort(inverse, kind="stable")
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    copy = np.empty(len(points), np.int32)
+    copy[order] = np.arange(len(points)) - np.repeat(starts, counts)
+    out = np.array(points, dtype=np.float32, copy=True)
+    x = out[:, 0].view(np.int32)
+    x += copy  # adjacent binary32 values for finite x away from the largest
+    return out

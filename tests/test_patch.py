@@ -266,8 +266,7 @@ def test_positions_decoded_from_spz_take_dracos_grid_coder_at_three_quarters_the
 def test_positions_as_a_set_are_a_permutation_within_half_a_step(seed, n, bits, twins):
     """[R-58], [R-100]: a layer coded as a set is stored in Draco's order; ``order`` names the
     input row of every stored point, each decodes within half a grid step of its own row, and the
-    file never grows for it. Exact twins (which Draco's kd-tree mode merges) keep the sequential
-    coding; points sharing a grid cell do not."""
+    file never grows for it; exact twins (which Draco's kd-tree mode would merge) included."""
     import zlib
 
     from spcodec.encoder.patch import encode_positions
@@ -286,8 +285,36 @@ def test_positions_as_a_set_are_a_permutation_within_half_a_step(seed, n, bits, 
     assert off <= 0.5 * step * 1.001 + 1e-6 * float(np.abs(xyz).max())
     sizes = [len(zlib.compress(pack_positions(p.positions))) for p in (unordered, ordered)]
     assert sizes[0] <= sizes[1]
-    if twins:
-        assert np.array_equal(unordered.order, np.arange(n))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 300), st.integers(1, 6))
+def test_apart_separates_twins_by_units_in_the_last_place(seed, n, copies):
+    from spcodec.encoder.draco import apart
+
+    rng = np.random.default_rng(seed)
+    xyz = rng.normal(size=(n, 3)).astype(np.float32)
+    twins = np.concatenate([xyz] + [xyz[: n // 2]] * (copies - 1))
+    moved = apart(twins)
+    assert len(np.unique(moved, axis=0)) == len(moved)
+    assert np.array_equal(moved[:, 1:], twins[:, 1:])
+    assert np.array_equal(moved[:n], xyz)  # first copies stay where they are
+    assert np.abs(moved[:, 0] - twins[:, 0]).max() <= copies * np.spacing(np.abs(twins[:, 0])).max()
+
+
+def test_a_layer_with_twins_is_coded_as_a_set_too():
+    """biker (decoded from SPZ) repeats 341 positions exactly: at 14 bits its layer is
+    still coded as a set, and every Gaussian comes back."""
+    from spcodec.encoder.patch import encode_positions
+    from spcodec.sections import PositionMode
+
+    xyz = spcodec.read_ply(real_file("playcanvas_biker_guitar/biker_from_spz_inria.ply")).means
+    assert len(np.unique(xyz, axis=0)) < len(xyz) - 300
+    xyz = xyz[np.argsort(morton_codes(xyz.astype(np.float64)), kind="stable")]
+    unordered, ordered = (encode_positions(xyz, "draco", 14, set_saving=s) for s in (2.0, None))
+    assert unordered.positions.mode == PositionMode.DRACO
+    assert np.array_equal(np.sort(unordered.order), np.arange(len(xyz)))
+    assert len(unordered.positions.blob) < 0.9 * len(ordered.positions.blob)
 
 
 def test_a_trained_scenes_positions_as_a_set_take_a_tenth_fewer_bytes():

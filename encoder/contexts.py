@@ -9,12 +9,21 @@ a context is kept only when the target column's compressed bytes, summed over th
 drop by more than its table costs compressed. A last check compresses the PATCH_ATTRIBUTES
 sections both ways, as the writer does, and drops every context if the file would not shrink,
 so contexts never make a file larger.
+
+That check compresses each section twice, and the file's own write compresses the chosen ones
+again (from memory): on a large patch it was most of the cost of choosing. With zlib, a layer
+longer than deflate's 32 KiB window codes each column in its section as it codes alone (no
+string match reaches the same row of another column), so such a layer's saving is taken from
+its columns' measured savings, counted at :data:`ESTIMATE_TRUST`, instead of compressing its
+section without contexts. Short layers, every zstd layer (whose window spans columns), and long
+layers whose discounted savings leave the answer in doubt are still compressed both ways.
 """
 
 from __future__ import annotations
 
 import zlib
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -33,6 +42,14 @@ TOC_ENTRY_BYTES = 40
 
 MIN_ESTIMATED_GAIN = 64
 """Bytes the entropy estimate must promise before a candidate is compressed for real."""
+
+DEFLATE_WINDOW = 32768
+"""zlib's largest window: a string match reaches at most this many bytes back."""
+
+ESTIMATE_TRUST = 0.5
+"""The share of a long layer's summed column savings the "does it shrink" check counts on: a
+section's own saving comes out close to its columns' (within a few percent on real patches),
+and half leaves room for the plain stream or zlib's block splits to take some of it."""
 
 
 class RecentChoices(Recent):
@@ -74,7 +91,7 @@ def choose_index_contexts(codebooks: list[Codebook], layers: list[PatchLayer],
     joined = np.concatenate(per_layer, axis=1)
     owner = np.repeat(np.arange(len(codebooks)), [cb.groups for cb in codebooks])
 
-    def decide(target: int) -> IndexContext | None:
+    def decide(target: int) -> Decided | None:
         if entries[target] < 2:
             return None
         candidates = _candidates(owner, target)
@@ -86,11 +103,21 @@ def choose_index_contexts(codebooks: list[Codebook], layers: list[PatchLayer],
                                                          target, codec, level))
 
     with ThreadPoolExecutor(jobs or default_jobs()) as pool:
-        chosen = [r for r in pool.map(decide, range(1, len(entries))) if r is not None]
-        if chosen and not _shrinks_file(per_layer, chosen, codec, level, pool):
+        decided = [d for d in pool.map(decide, range(1, len(entries))) if d is not None]
+        chosen = [d.record for d in decided]
+        saved = [sum(d.saved[i] for d in decided) for i in range(len(per_layer))]
+        if chosen and not _shrinks_file(per_layer, chosen, saved, codec, level, pool):
             chosen = []
     RECENT.put(whole, list(chosen))
     return chosen
+
+
+@dataclass(frozen=True)
+class Decided:
+    """A column's context record and the bytes it saves in each layer's column, coded alone."""
+
+    record: IndexContext
+    saved: tuple[int, ...]
 
 
 def _candidates(owner: np.ndarray, target: int) -> list[int]:
@@ -102,16 +129,18 @@ def _candidates(owner: np.ndarray, target: int) -> list[int]:
 
 def _decided(per_layer: list[np.ndarray], joined: np.ndarray, entries: np.ndarray,
              candidates: list[int], target: int, codec: Codec, level: int | None
-             ) -> IndexContext | None:
+             ) -> Decided | None:
     """The context record of column ``target`` when its best candidate saves bytes on the
-    file's codec (None otherwise)."""
+    file's codec, less its table (None otherwise)."""
     context = _best_candidate(joined, entries, candidates, target)
     if context is None:
         return None
     table = rank_table(joined[context], joined[target], int(entries[context]),
                        int(entries[target]))
     record = IndexContext(target, context, table)
-    return record if _measured_gain(per_layer, record, codec, level) > 0 else None
+    saved = _layer_savings(per_layer, record, codec, level)
+    cost = _column_bytes(record.table.tobytes(), codec, level) + 2  # and the record's two bytes
+    return Decided(record, tuple(saved)) if sum(saved) - cost > 0 else None
 
 
 def _columns(layer: PatchLayer, codebooks: list[Codebook]) -> np.ndarray:
@@ -166,30 +195,41 @@ def _column_bytes(data: bytes, codec: Codec, level: int | None) -> int:
     return len(compressions.RECENT(codec, data, level))
 
 
-def _measured_gain(per_layer: list[np.ndarray], record: IndexContext, codec: Codec,
-                   level: int | None) -> int:
-    """Bytes saved over all layers by coding ``record.target`` as ranks, less the table's
-    compressed size and the record's two column bytes."""
-    saved = 0
+def _layer_savings(per_layer: list[np.ndarray], record: IndexContext, codec: Codec,
+                   level: int | None) -> list[int]:
+    """Bytes saved in each layer by coding column ``record.target`` as ranks, each column
+    compressed alone."""
+    saved = []
     for columns in per_layer:
         ranks = to_ranks(columns, [record])[record.target]
-        saved += (_column_bytes(columns[record.target].tobytes(), codec, level)
-                  - _column_bytes(ranks.tobytes(), codec, level))
-    return saved - _column_bytes(record.table.tobytes(), codec, level) - 2
+        saved.append(_column_bytes(columns[record.target].tobytes(), codec, level)
+                     - _column_bytes(ranks.tobytes(), codec, level))
+    return saved
 
 
-def _shrinks_file(per_layer: list[np.ndarray], chosen: list[IndexContext], codec: Codec,
-                  level: int | None, pool: ThreadPoolExecutor) -> bool:
+def _shrinks_file(per_layer: list[np.ndarray], chosen: list[IndexContext], saved: list[int],
+                  codec: Codec, level: int | None, pool: ThreadPoolExecutor) -> bool:
     """Whether the index sections with ``chosen`` plus the contexts section and its table entry
     are smaller than the index sections without, each compressed as the writer compresses it,
     through the encoder's memory of compressions (:mod:`.compressions`): the writer then finds
-    the chosen sections there instead of compressing them again."""
+    the chosen sections there instead of compressing them again.
+
+    A layer longer than deflate's window first counts :data:`ESTIMATE_TRUST` of its ``saved``
+    (its columns' savings, coded alone) instead of being compressed both ways; only when that
+    leaves the answer short of yes are those layers compressed too."""
     def stored(columns: np.ndarray) -> int:
         raw = columns.tobytes()
         return min(len(compressions.RECENT(codec, raw, level, columns.shape[1])), len(raw))
 
-    sizes = list(pool.map(stored, per_layer + [to_ranks(c, chosen) for c in per_layer]))
-    without, with_contexts = sum(sizes[:len(per_layer)]), sum(sizes[len(per_layer):])
+    def saving(layers: list[np.ndarray]) -> int:
+        sizes = list(pool.map(stored, layers + [to_ranks(c, chosen) for c in layers]))
+        return sum(sizes[:len(layers)]) - sum(sizes[len(layers):])
+
     table = pack_contexts(chosen)
     extra = min(len(compressions.RECENT(codec, table, level)), len(table)) + TOC_ENTRY_BYTES
-    return with_contexts + extra < without
+    long = [codec == Codec.ZLIB and columns.shape[1] > DEFLATE_WINDOW for columns in per_layer]
+    short = saving([columns for columns, is_long in zip(per_layer, long) if not is_long])
+    estimated = ESTIMATE_TRUST * sum(s for s, is_long in zip(saved, long) if is_long)
+    if short + estimated > extra:
+        return True
+    return short + saving([columns for columns, is_long in zip(per_layer, long) if is_long]) > extra

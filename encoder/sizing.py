@@ -52,6 +52,11 @@ resolution (:meth:`QualityTarget.landed`)."""
 ALLOCATION_TRIALS = 4
 """Real writes the precision search may make to land its allocation under the target."""
 
+DECISIVE_DB = 1.0
+"""How far (dB at the training views) every Gaussian at a coarser precision must have beaten the
+preset's file pruned to the target, in an encode with the sketch, for the encode made again
+without it to take that verdict instead of rendering both files again."""
+
 RowFit = Callable[[GaussianCloud, Quantized, np.ndarray], "np.ndarray | None"]
 """``(cloud, quantized, importance) -> rows to keep`` (None: all of them)."""
 
@@ -169,6 +174,10 @@ class SizeTarget(Sizing):
         self.chosen: Allocation | None = None
         self.inherited: PrecisionSearch | None = None
         """The search an earlier size target of the same scene measured (:meth:`inherit`)."""
+        self.verdict: tuple[float, float] | None = None
+        """Training-view PSNR of the allocated file and of the pruned one, when compared."""
+        self.inherited_verdict: tuple[float, float] | None = None
+        """The verdict of an earlier size target of the same scene (:meth:`inherit`)."""
 
     def inherit(self, earlier: Sizing) -> None:
         """Also the earlier target's precision search: re-encoding without the sketch, the
@@ -177,6 +186,7 @@ class SizeTarget(Sizing):
         super().inherit(earlier)
         if isinstance(earlier, SizeTarget) and earlier.search is not None:
             self.inherited = earlier.search
+            self.inherited_verdict = earlier.verdict
 
     def plan(self, patch: GaussianCloud, weights: np.ndarray, writer: SceneWriter,
              encoder: PatchEncoder, rows: np.ndarray | None = None) -> int:
@@ -225,6 +235,10 @@ class SizeTarget(Sizing):
             # entropy predicts the index bytes to within the coder's context gains, which the
             # real write measures: each trial rescales the budget by the last one's miss
             candidate = search.for_bytes((aim - other) / ratio)
+            if candidate == tried and written is not None and \
+                    written < self.target * (1 - 3 * FIT_SLACK):
+                # a gap in the curve at the aim: the next allocation up may fit the target itself
+                candidate = search.for_bytes((self.target - other) / ratio)
             if candidate is None or candidate == tried or \
                     (full_bytes <= self.target and candidate.distortion >= preset.distortion):
                 break
@@ -240,10 +254,7 @@ class SizeTarget(Sizing):
             ratio = max(size - other, 1.0) / max(candidate.bytes, 1.0)
         record = {"preset_distortion": preset.distortion}
         if chosen is not None and full_bytes > self.target:
-            pruned = pruned_file(writer, encoder, patch, weights, pruned_count).data
-            scores = self._render_psnr([data, pruned])
-            record["training_view_psnr"] = {"every_gaussian": round(scores[0], 3),
-                                            "pruned": round(scores[1], 3)}
+            scores = self._compared(data, writer, encoder, patch, weights, pruned_count, record)
             if scores[0] <= scores[1]:
                 chosen = None
         record["seconds"] = round(time.perf_counter() - start, 2)
@@ -256,6 +267,29 @@ class SizeTarget(Sizing):
             self.record["rate"].update(predicted_bytes=written)
             self.record["rate"].pop("note", None)
         self.record["rate"]["precision"] = record
+
+    def _compared(self, data: bytes, writer: SceneWriter, encoder: PatchEncoder,
+                  patch: GaussianCloud, weights: np.ndarray, pruned_count: int,
+                  record: dict) -> tuple[float, float]:
+        """Training-view PSNR of the allocated file ``data`` and of the preset's file pruned to
+        ``pruned_count`` (:meth:`_render_psnr`). An encode made again without its sketch takes
+        the first encode's verdict when that was decisive (:data:`DECISIVE_DB`): it weighs the
+        same precision against the same pruning at the same target, and the sketch's Gaussians,
+        coded alike in both files, shift both scores; rendering both files at every training
+        view is a sizeable part of a size target's time."""
+        earlier = self.inherited_verdict
+        inherited = earlier is not None and earlier[0] - earlier[1] >= DECISIVE_DB
+        if inherited:
+            scores = earlier
+        else:
+            pruned = pruned_file(writer, encoder, patch, weights, pruned_count).data
+            scores = tuple(self._render_psnr([data, pruned]))
+        self.verdict = scores
+        record["training_view_psnr"] = {"every_gaussian": round(scores[0], 3),
+                                        "pruned": round(scores[1], 3)}
+        if inherited:
+            record["training_view_psnr"]["from"] = "the encode with the sketch"
+        return scores
 
     def _render_psnr(self, files: list[bytes]) -> list[float]:
         """Mean PSNR (dB) of each file against the input over the search's training views,

@@ -293,6 +293,92 @@ def test_a_sizing_made_again_for_the_same_scene_measures_its_sensitivity_and_ren
 
 
 
+@settings(max_examples=30, deadline=None)
+@given(st.floats(20.0, 60.0), st.floats(-3.0, 3.0))
+def test_an_encode_made_again_takes_only_a_decisive_verdict_of_the_first(scene, every, margin):
+    """The render comparison of every Gaussian at a coarser precision against the pruned preset
+    file: the encode made again without the sketch takes the first encode's verdict when it was
+    decisive (DECISIVE_DB or more), and renders both of its own files otherwise."""
+    import types
+
+    from spcodec.encoder import sizing as sizing_module
+
+    pruned = every - margin
+    rendered = []
+    config = _config("balanced", 10**6)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(sizing_module.SizeTarget, "_render_psnr",
+                      lambda self, files: rendered.append(list(files)) or [every, pruned])
+        patch.setattr(sizing_module, "pruned_file",
+                      lambda *args: types.SimpleNamespace(data=b"pruned"))
+        first = sizing_module.SizeTarget(config, scene, "cpu")
+        record: dict = {}
+        assert first._compared(b"file", None, None, scene, None, 10, record) == (every, pruned)
+        assert rendered == [[b"file", b"pruned"]] and "from" not in record["training_view_psnr"]
+        first.search = PrecisionSearch.__new__(PrecisionSearch)  # a search was made
+        again = sizing_module.SizeTarget(config, scene, "cpu")
+        again.inherit(first)
+        record = {}
+        assert again._compared(b"again", None, None, scene, None, 10, record) == (every, pruned)
+    decisive = every - pruned >= sizing_module.DECISIVE_DB
+    assert len(rendered) == (1 if decisive else 2)
+    assert ("from" in record["training_view_psnr"]) == decisive
+    assert again.verdict == (every, pruned)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(0.85, 1.0), st.integers(0, 200))
+def test_a_gap_in_the_curve_at_the_aim_is_crossed_when_the_next_point_fits(shrink, gap):
+    """The trials aim 1 % under the target; when the curve has no point between the one the
+    last trial repeats and the aim's budget, and that trial landed more than three slack widths
+    under, the next point up is tried against the target itself. Files never exceed it."""
+    import types
+
+    from spcodec.encoder import sizing as sizing_module
+    from spcodec.encoder.patch import PatchEncoder
+
+    target, low = 10_000, 9_000
+
+    def real(predicted: int) -> int:  # the written file: a little under the entropy's bytes
+        return int(predicted * shrink) + 1
+
+    ratio = real(low) / low
+    high = int(target * (1 - FIT_SLACK) / ratio) + 1 + gap  # beyond the aim's budget
+
+    class Point:
+        def __init__(self, predicted: int) -> None:
+            self.bytes, self.distortion, self.options = predicted, 1e4 / predicted, {}
+
+        def patch_config(self, base: PatchConfig) -> PatchConfig:
+            return dataclasses.replace(base, entry_counts={"bytes": self.bytes})
+
+        def describe(self) -> dict:
+            return {"bytes": self.bytes}
+
+    preset, points = Point(low // 2), [Point(low), Point(high)]
+    search = types.SimpleNamespace(
+        rescaled=lambda count: search, matching=lambda *args: preset,
+        for_bytes=lambda budget: max((p for p in points if p.bytes <= budget),
+                                     key=lambda p: p.bytes, default=None))
+    written = []
+
+    def pruned_file(writer, encoder, patch, weights, count):
+        written.append(real(encoder.config.entry_counts["bytes"]))
+        return types.SimpleNamespace(size=written[-1], data=b"")
+
+    config = _config("balanced", target)
+    sizing = sizing_module.SizeTarget(config, None, "cpu")
+    sizing.inherited, sizing.record["rate"] = search, {}
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(sizing_module, "pruned_file", pruned_file)
+        sizing.allocate(np.zeros(4), np.ones(4), None, PatchEncoder(config.patch), preset.bytes,
+                        None, 4)
+    landed = sizing.record["rate"]["predicted_bytes"]
+    assert landed in written and landed <= target
+    crossed = high <= target / ratio and real(high) <= target
+    assert landed == (real(high) if crossed else real(low))
+
+
 @settings(max_examples=50, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.integers(2, 300), st.integers(1, 40))
 def test_entry_counts_are_capped_at_the_whole_patchs_distinct_values(seed, levels, rare):

@@ -370,20 +370,26 @@ def test_the_worker_environment_drops_only_dasks_malloc_trim_threshold():
 
 
 @pytest.mark.slow  # starts a Dask cluster
-def test_local_workers_start_without_the_malloc_trim_threshold(monkeypatch):
+def test_local_workers_start_without_the_malloc_trim_threshold_and_with_quiet_watchers(monkeypatch):
     """Dask's default (65536) made each worker map and unmap the encoder's temporaries on every
     call: the same merge cost nearly twice the CPU of a plain process (docs/LOG.md 22.5). A
     nanny also leaves the variable in its parent's environment (as any earlier Dask cluster in
-    this test process did), so the workers must not inherit it from there either."""
+    this test process did), so the workers must not inherit it from there either. The worker
+    process itself (not only this one) runs with the watchers slowed (:data:`jobs.QUIET`)."""
     import os
 
-    from spcodec.tiling.jobs import engine
+    import dask
+
+    from spcodec.tiling.jobs import QUIET, engine
 
     monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "65536")
     with engine(TilingConfig(**SMALL, workers=1)) as client:
         seen = client.run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_"))
+        settings = list(client.run(lambda: {k: dask.config.get(k) for k in QUIET}).values())
     assert list(seen.values()) == [None]
     assert os.environ["MALLOC_TRIM_THRESHOLD_"] == "65536"  # this process's own setting is back
+    assert settings == [QUIET]
+    assert dask.config.get("distributed.worker.profile.enabled") is True  # not left set here
 
 
 @pytest.mark.slow

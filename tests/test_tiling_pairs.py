@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from spcodec.cloud import GaussianCloud
-from spcodec.tiling.grouping import candidate_pairs, greedy_pairs
-from spcodec.tiling.merge import merge_groups, quat_to_matrix, weights
+from spcodec.tiling.grouping import NEIGHBOURS, candidate_pairs, greedy_pairs, pair_round
+from spcodec.tiling.merge import merge_groups, merge_pairs, quat_to_matrix, weights
 from spcodec.tiling.pair_cost import APPEARANCE_COST, THINNEST, pair_costs
 
 LOG_2PI = np.log(2.0 * np.pi)
@@ -128,3 +128,64 @@ def test_merge_rejects_labels_that_leave_a_group_empty():
     cloud = random_cloud(np.random.default_rng(0), 4, 0.3)
     with pytest.raises(ValueError, match="every group"):
         merge_groups(cloud, np.array([0, 0, 2, 2]), 3)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2 ** 16), n=st.integers(2, 400), copies=st.integers(0, 3))
+def test_candidate_pairs_are_every_neighbour_pair_once_in_order(seed, n, copies):
+    """Against the plain construction: each Gaussian's nearest (queried in input order), every
+    ``(min, max)`` key sorted and each kept once; clouds with repeated centres included, where
+    a Gaussian need not be first in its own list."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(seed)
+    means = rng.normal(0, 1, (n, 3)).astype(np.float32)
+    for _ in range(copies):
+        means[rng.integers(0, n, n // 3)] = means[rng.integers(0, n, n // 3)]
+    k = min(NEIGHBOURS + 1, n)
+    near = np.asarray(cKDTree(means).query(means, k=k)[1]).reshape(n, k)
+    pairs = {(min(a, int(b)), max(a, int(b))) for a in range(n) for b in near[a] if b != a and b < n}
+    want = np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2)
+    i, j = candidate_pairs(means)
+    np.testing.assert_array_equal(np.stack([i, j], axis=1), want)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2 ** 16), n=st.integers(2, 300), share=st.floats(0.0, 1.0))
+def test_merge_pairs_is_merge_groups_to_the_last_bit(seed, n, share):
+    """Disjoint pairs and singles, as a pairing round makes them: the pair merge gives the
+    general merge's Gaussians exactly (a round's level feeds the next round's costs)."""
+    rng = np.random.default_rng(seed)
+    cloud = random_cloud(rng, n, 0.3)
+    order = rng.permutation(n)
+    pairs = int(share * (n // 2))
+    a, b = order[:pairs], order[pairs:2 * pairs]
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    alone = np.ones(n, bool)
+    alone[hi] = False
+    first = np.flatnonzero(alone)
+    group = np.cumsum(alone) - 1
+    labels = group.copy()
+    labels[hi] = group[lo]
+    second = np.full(len(first), -1, np.int64)
+    second[group[lo]] = hi
+    got, want = merge_pairs(cloud, first, second), merge_groups(cloud, labels, len(first)).cloud
+    for name in ("means", "scales", "quats", "opacities", "sh_dc", "sh_rest"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2 ** 16), n=st.integers(2, 300), share=st.floats(0.0, 1.0))
+def test_pair_round_names_each_group_by_its_members(seed, n, share):
+    """A round's labels, first and second members agree: groups numbered by their first
+    members in order, a second member later than its first, every Gaussian in one group."""
+    cloud = random_cloud(np.random.default_rng(seed), n, 0.3)
+    labels, first, second = pair_round(cloud, max(1, int(share * n / 2)))
+    count = len(first)
+    assert np.all(np.diff(first) > 0)
+    np.testing.assert_array_equal(labels[first], np.arange(count))
+    paired = second >= 0
+    assert np.all(second[paired] > first[paired])
+    np.testing.assert_array_equal(labels[second[paired]], np.flatnonzero(paired))
+    assert np.bincount(labels, minlength=count).sum() == n
+    assert len(np.union1d(first, second[paired])) == n

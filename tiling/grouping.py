@@ -2,11 +2,11 @@
 
 A level keeps ``ceil(n / branching)`` Gaussians. Each round pairs Gaussians with one of their
 :data:`NEIGHBOURS` nearest, cheapest pair first, each Gaussian in at most one pair, and merges the
-pairs (:func:`.merge.merge_groups`); rounds repeat on the merged Gaussians until the count is
-reached, so a group is whatever chain of pairs ended in one Gaussian. The last round stops at the
-count exactly. The level itself is then merged once from the finer Gaussians with the composed
-groups (moments compose, so this is the same as merging round by round, without the rounds'
-rounding).
+pairs (:func:`.merge.merge_pairs`, bit for bit :func:`.merge.merge_groups`); rounds repeat on the
+merged Gaussians until the count is reached, so a group is whatever chain of pairs ended in one
+Gaussian. The last round stops at the count exactly. The level itself is then merged once from
+the finer Gaussians with the composed groups (moments compose, so this is the same as merging
+round by round, without the rounds' rounding).
 
 The cost of merging ``i`` and ``j`` says how badly one Gaussian stands for the pair, in shape and
 in appearance, whatever their size (:mod:`.pair_cost` computes it):
@@ -39,7 +39,7 @@ import numpy as np
 
 from spcodec.cloud import GaussianCloud
 
-from .merge import MergedLevel, merge_groups
+from .merge import MergedLevel, merge_groups, merge_pairs
 from .pair_cost import pair_costs
 
 NEIGHBOURS = 16
@@ -57,14 +57,39 @@ def candidate_pairs(means: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     k = min(NEIGHBOURS + 1, n)
     from scipy.spatial import cKDTree  # the encoder's extra: decode and info never load it
 
-    _, near = cKDTree(means).query(means, k=k)
-    near = np.asarray(near).reshape(n, k)
-    # every column: with duplicate centres a Gaussian need not be first in its own list
-    i, j = np.repeat(np.arange(n), k), near.ravel()
-    keep = (j < n) & (i != j)
-    key = np.sort(np.minimum(i[keep], j[keep]) * n + np.maximum(i[keep], j[keep]))
+    tree = cKDTree(means)
+    # queried in the tree's own order, so that neighbouring queries walk the same nodes (each
+    # query's answer does not depend on the others: the same lists, a fifth less time)
+    _, found = tree.query(means[tree.indices], k=k)
+    near = np.empty((n, k), np.int64)
+    near[tree.indices] = np.asarray(found).reshape(n, k)
+    key = np.concatenate([_later_keys(near), _earlier_keys(near)])
+    key.sort(kind="stable")  # two sorted runs: a merge of them, not a sort of all the keys
     key = key[np.concatenate([[True], key[1:] != key[:-1]])]  # each pair once (mutual neighbours)
     return key // n, key % n
+
+
+def _later_keys(near: np.ndarray) -> np.ndarray:
+    """Keys ``i * n + j`` of the pairs ``(i, j)`` with ``j`` in ``i``'s list and ``j > i``,
+    ascending: each row's later neighbours sorted within the row (every column is read: with
+    duplicate centres a Gaussian need not be first in its own list)."""
+    n = len(near)
+    rows = np.arange(n)[:, None]
+    later = np.where((near > rows) & (near < n), near, n)
+    later.sort(axis=1)
+    kept = later < n
+    return np.repeat(np.arange(n), kept.sum(axis=1)) * n + later[kept]
+
+
+def _earlier_keys(near: np.ndarray) -> np.ndarray:
+    """Keys ``j * n + i`` of the pairs ``(j, i)`` with ``j`` in ``i``'s list and ``j < i``,
+    ascending."""
+    n = len(near)
+    rows = np.arange(n)[:, None]
+    earlier = near < rows
+    key = near[earlier] * n + np.broadcast_to(rows, near.shape)[earlier]
+    key.sort()
+    return key
 
 
 def greedy_pairs(i: np.ndarray, j: np.ndarray, cost: np.ndarray, n: int, limit: int,
@@ -106,16 +131,22 @@ def greedy_pairs(i: np.ndarray, j: np.ndarray, cost: np.ndarray, n: int, limit: 
     return picked[np.lexsort((picked, cost[picked]))][:limit]
 
 
-def pair_round(cloud: GaussianCloud, merges: int) -> tuple[np.ndarray, int]:
-    """Group labels after at most ``merges`` disjoint pairs, cheapest first (at least one when
-    the cloud has two Gaussians)."""
+def pair_round(cloud: GaussianCloud, merges: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """At most ``merges`` disjoint pairs, cheapest first (at least one when the cloud has two
+    Gaussians), as ``(labels, first, second)``: each Gaussian's group, numbered by its first
+    member, and each group's members (``second`` -1 for a Gaussian left alone)."""
     n = len(cloud)
     i, j = candidate_pairs(cloud.means.astype(np.float32))
     taken = greedy_pairs(i, j, pair_costs(cloud, i, j), n, merges)
-    partner = np.arange(n)
-    partner[j[taken]] = i[taken]
-    _, labels = np.unique(partner, return_inverse=True)
-    return labels, n - len(taken)
+    alone = np.ones(n, bool)
+    alone[j[taken]] = False  # i < j: the pair is numbered by i
+    first = np.flatnonzero(alone)
+    group = np.cumsum(alone) - 1
+    labels = group.copy()
+    labels[j[taken]] = group[i[taken]]
+    second = np.full(len(first), -1, np.int64)
+    second[group[i[taken]]] = j[taken]
+    return labels, first, second
 
 
 def pair_groups(cloud: GaussianCloud, target: int) -> tuple[np.ndarray, int]:
@@ -123,9 +154,9 @@ def pair_groups(cloud: GaussianCloud, target: int) -> tuple[np.ndarray, int]:
     fewer), by rounds of :func:`pair_round`."""
     labels, current, count = np.arange(len(cloud)), cloud, len(cloud)
     while count > max(target, 1):
-        round_labels, merged = pair_round(current, count - max(target, 1))
+        round_labels, first, second = pair_round(current, count - max(target, 1))
         labels = round_labels[labels]
-        current, count = merge_groups(current, round_labels, merged).cloud, merged
+        current, count = merge_pairs(current, first, second), len(first)
     return labels, count
 
 

@@ -58,10 +58,10 @@ def connect(config: TilingConfig) -> tuple[Client, Any]:
     if config.cluster is None:
         import dask
 
-        with dask.config.set({"distributed.nanny.pre-spawn-environ": worker_environment()}), \
-                _unset_environ(MALLOC_TRIM):
+        settings = {"distributed.nanny.pre-spawn-environ": worker_environment(), **QUIET}
+        with dask.config.set(settings), _unset_environ(MALLOC_TRIM):
             cluster = LocalCluster(n_workers=config.workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=":0", silence_logs=logging.ERROR,
+                                   dashboard_address=None, silence_logs=logging.ERROR,
                                    env={"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"})
         return Client(cluster), cluster
     try:
@@ -73,6 +73,20 @@ def connect(config: TilingConfig) -> tuple[Client, Any]:
 
 
 MALLOC_TRIM = "MALLOC_TRIM_THRESHOLD_"
+
+QUIET = {"distributed.worker.profile.enabled": False,
+         "distributed.admin.tick.interval": "1s",
+         "distributed.admin.system-monitor.interval": "5s",
+         "distributed.worker.memory.monitor-interval": "1s"}
+"""Dask's watchers of a local cluster slowed to what a build of minutes-long tasks needs.
+
+By default the worker samples its task's stack every 10 ms (its profiler), the event loops tick
+every 20 ms, the nanny reads the worker's memory every 100 ms and every process reads its system
+counters every 500 ms: an idle one-worker cluster cost 4 CPU s a minute, 7 % of a core, and a
+tileset's build is minutes of wall time (docs/LOG.md). Scheduling (work stealing included) is
+left as it is. The nanny hands its configuration to the worker it starts, so the settings reach
+the worker process; nothing here changes what a task computes. A cluster reached by
+``--cluster`` keeps its owner's settings."""
 
 
 @contextmanager

@@ -26,6 +26,7 @@ sees moved, not the one stray Gaussian that moved furthest.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -42,6 +43,9 @@ AREA_EXPONENT = 1.6075
 
 MIN_OPACITY = 1e-12
 """Floor on a merged opacity (a group of fully transparent Gaussians has weight 0)."""
+
+GroupSum = Callable[[np.ndarray, np.ndarray], np.ndarray]
+"""``(values, share) -> (groups, columns)``: each group's share-weighted sum of its rows."""
 
 MIN_VARIANCE = 1e-24
 """Floor on a merged covariance's eigenvalues (a single flat Gaussian has a zero one)."""
@@ -140,19 +144,56 @@ def weighted_quantile(values: np.ndarray, weight: np.ndarray, q: float) -> float
 
 def merge_groups(cloud: GaussianCloud, labels: np.ndarray, count: int) -> MergedLevel:
     """One Gaussian per group ``0..count-1`` of ``labels`` (see the module docstring)."""
-    w = weights(cloud)
-    total = np.bincount(labels, w, count)
-    share = w / total[labels]
     order = np.argsort(labels, kind="stable")
     starts = np.flatnonzero(np.diff(labels[order], prepend=-1))
     if len(starts) != count:
         raise ValueError(f"labels must name every group 0..{count - 1} at least once")
 
-    def average(values: np.ndarray) -> np.ndarray:
+    def group_sum(values: np.ndarray, share: np.ndarray) -> np.ndarray:
         """Share-weighted sums per group: the rows sorted by group, each group's run added up in
         row order (as ``np.add.at`` adds, ~20x slower)."""
         flat = values.reshape(len(values), -1)[order].astype(np.float64) * share[order, None]
-        return np.add.reduceat(flat, starts, axis=0).reshape((count,) + values.shape[1:])
+        return np.add.reduceat(flat, starts, axis=0)
+
+    merged, w, offset, alpha = _merge(cloud, labels, count, group_sum)
+    moved = np.linalg.norm(offset, axis=1)
+    return MergedLevel(merged, weighted_quantile(moved, w, ERROR_QUANTILE),
+                       int((alpha >= MAX_OPACITY).sum()))
+
+
+def merge_pairs(cloud: GaussianCloud, first: np.ndarray, second: np.ndarray) -> GaussianCloud:
+    """:func:`merge_groups` of groups of one or two: group ``g`` is ``first[g]`` and, where
+    ``second[g] >= 0``, ``second[g] > first[g]``. Bit for bit the same Gaussians, for a pairing
+    round's intermediate level: a sum of two products needs no sort of the rows, and the
+    round's level needs no spatial error."""
+    count = len(first)
+    labels = np.empty(len(cloud), np.int64)
+    labels[first] = np.arange(count)
+    pair = np.flatnonzero(second >= 0)
+    later = second[pair]
+    labels[later] = pair
+
+    def group_sum(values: np.ndarray, share: np.ndarray) -> np.ndarray:
+        """The first member's product plus the second's (two terms add up the same in any
+        order, so this is :func:`merge_groups`' sum exactly)."""
+        flat = values.reshape(len(values), -1)
+        out = flat[first].astype(np.float64) * share[first, None]
+        out[pair] += flat[later].astype(np.float64) * share[later, None]
+        return out
+
+    return _merge(cloud, labels, count, group_sum)[0]
+
+
+def _merge(cloud: GaussianCloud, labels: np.ndarray, count: int, group_sum: GroupSum
+           ) -> tuple[GaussianCloud, np.ndarray, np.ndarray, np.ndarray]:
+    """The merged Gaussians of the groups ``group_sum`` adds up (the module docstring), with
+    the members' weights, their offsets from their merged centres and the merged opacities."""
+    w = weights(cloud)
+    total = np.bincount(labels, w, count)
+    share = w / total[labels]
+
+    def average(values: np.ndarray) -> np.ndarray:
+        return group_sum(values, share).reshape((count,) + values.shape[1:])
 
     mean = average(cloud.means)
     offset = cloud.means.astype(np.float64) - mean[labels]
@@ -164,9 +205,7 @@ def merge_groups(cloud: GaussianCloud, labels: np.ndarray, count: int) -> Merged
     vec[:, :, 2] *= np.sign(np.linalg.det(vec))[:, None]  # a proper rotation
     log_scales = 0.5 * np.log(var)
     alpha = fit_opacity(total, log_scales)
-    moved = np.linalg.norm(offset, axis=1)
     merged = GaussianCloud(means=mean, scales=log_scales, quats=matrix_to_quat(vec),
                            opacities=np.log(alpha / (1.0 - alpha)), sh_dc=average(cloud.sh_dc),
                            sh_rest=average(cloud.sh_rest))
-    return MergedLevel(merged, weighted_quantile(moved, w, ERROR_QUANTILE),
-                       int((alpha >= MAX_OPACITY).sum()))
+    return merged, w, offset, alpha

@@ -119,10 +119,12 @@ def sized(config: EncoderConfig, target_size: int) -> EncoderConfig:
     """``config`` aimed at ``target_size`` bytes by rate control, with the smaller codebooks
     (:data:`TARGET_GROUPS_PER_ENTRY`) that leave the bytes to Gaussians, as ``--target-size``
     does; without retraining, with the precision search (:class:`AllocationConfig`), which
-    keeps every Gaussian wherever some precision fits them all."""
+    keeps every Gaussian wherever some precision fits them all, and without a sketch, which the
+    search's files never kept (DECISIONS D-30)."""
+    searched = config.retrain is None
     return dataclasses.replace(
-        config, target_size=target_size,
-        allocation=AllocationConfig() if config.retrain is None else config.allocation,
+        config, target_size=target_size, use_sketch=config.use_sketch and not searched,
+        allocation=AllocationConfig() if searched else config.allocation,
         patch=dataclasses.replace(config.patch, groups_per_entry=TARGET_GROUPS_PER_ENTRY))
 
 

@@ -121,11 +121,9 @@ STILL_MISSED = (
      "missed: 0.38 dB short at 30x, 1.78 at 100x (1000 retraining steps)", "16.1"),
     ("No-retrain `--target-size` at most 0.75x SPZ's bytes and as good",
      "met on donut (0.64x), kacytran (0.40x), lego (0.74x) and fourth_st (0.735x, +0.03 / +0.22 dB "
-     "with exact codebooks and Draco on the input's grid, LOG 21.1); missed on guitar (-1.1 / "
-     "-1.3 dB at 0.747x, -0.5 / -0.7 with ECVQ; SPZ's quality at 0.78x) and biker against SOG "
-     "(-3.4 / -3.2 at 0.742x; SOG's quality at 0.83-0.87x): the search judges them as the viewer "
-     "does and every codebook is exact or at the format's cap, so the rest needs item 3's codings",
-     "22.2"),
+     "with exact codebooks and Draco on the input's grid, LOG 21.1); missed on guitar (-0.16 / "
+     "-0.27 dB at 0.748x, from -1.1 / -1.3: positions coded as a set and no sketch, LOG 23.1, "
+     "23.4) and biker against SOG (-2.0 / -1.4 at 0.741x, from -3.4 / -3.2)", "23.4"),
     ("No holes: adjacent no-retrain points at most 3 dB apart (orbit)",
      "met on kacytran; missed on donut: the first 5 dB step filled by the wider precision ladder "
      "(35.32 -> 40.24 dB at 0.45x, LOG 20.8), the second is the sketch kept or dropped on a "
@@ -134,17 +132,19 @@ STILL_MISSED = (
     ("No-retrain `--target-psnr` in seconds to a minute",
      "missed: 84 CPU s on kacytran (from 106, LOG 21.2; judged at 400 px, the answer at 800); it "
      "landed at 40.00 dB for a 40 dB target", "20.5"),
-    ("Format 1.2 context coding decodes no slower per Gaussian",
-     "missed: 8-10 % slower on fourth_st transparent, where 34 columns use contexts", "17.5"),
+    ("Item 3's codings decode no slower per Gaussian",
+     "missed: 1.2's contexts 8-10 % slower on fourth_st transparent, where 34 columns use them "
+     "(LOG 17.5); positions coded as a set decode 1.3x (Python) / 1.6x (JavaScript) slower than "
+     "sequential Draco, so they are taken only where they save 2 bits per Gaussian", "23.1"),
     ("A 20 M-Gaussian tileset under 4 GB at 1.5x the single-file time per Gaussian",
      "memory met as far as it ran (26 of 341 nodes, 1.07 GB over all processes); time missed, "
-     "2.2-2.9x the single file per Gaussian on a 1 M tileset (from 2.8-4x: a 1.7x faster merge, "
-     "Dask workers that keep freed memory), 1.9-2.1x with 250 k leaves under a root of 8 (its "
-     "merge of 2 M then peaks at 3.25 GB)", "22.7"),
+     "2.05-2.23x the single file per Gaussian on a 1 M tileset with the default leaves, "
+     "1.58-1.72x with 512 k leaves under a root of 8 (byte-identical merges 15 % cheaper, Dask's "
+     "watchers slowed; the root's merge of 2 M is the gap and peaks at 3.27 GB)", "23.5"),
     ("No-retrain targeted encode at most 2x the balanced encode's time",
-     "missed: 2.7-4.1x on kacytran, donut, guitar and fourth_st (from 3.2-5.0x; trials share their "
-     "codebook fits and context choices, byte-identical files); what is left is new work per "
-     "trial, and the levers that remain change bytes", "22.1"),
+     "missed: 3.0-4.0x on kacytran, donut, guitar and fourth_st (from 2.7-4.1x with a cheaper "
+     "contexts check and one verdict for both encodes, LOG 23.3), and 0-26 % less again without "
+     "the sketch (D-30); the precision search is a third to two fifths of what is left", "23.3"),
     ("A prefix within 30 % of the bytes within 3 dB of the whole file",
      "missed, and out of reach at SPZ/4 on guitar and donut", "15.8"),
     ("`spcodec eval --reference` 3x faster with the render cache",

@@ -208,6 +208,7 @@ def test_the_summary_names_the_chosen_codebooks_and_grid(capsys):
 
 
 
+@pytest.mark.slow  # ECVQ fits of every option: 11 s
 def test_ecvq_variants_compete_as_options_and_reach_the_patch_config(scene, cameras, search):
     """With ECVQ strengths, every codebook option but scalar rotations gains variants of fewer
     index bits for more predicted distortion (the same entries); a budget then chooses among

@@ -77,6 +77,7 @@ def test_a_framing_rendered_alone_is_the_one_the_evaluation_reads_back(tmp_path,
     assert np.array_equal(np.stack(drawn), framing.images)
 
 
+@pytest.mark.slow  # renders the scene at full and reduced size: 9-11 s
 def test_the_judge_reports_the_evaluations_closeup_psnr(tmp_path, scene):
     model = _noisy(scene)
     report = evaluate_against_reference(model, scene, EvalConfig(closeups=(0.5,), device="cpu"))
@@ -85,6 +86,7 @@ def test_the_judge_reports_the_evaluations_closeup_psnr(tmp_path, scene):
     assert len(list(tmp_path.glob("*.npz"))) == 1  # the original's close-ups, for eval to reuse
 
 
+@pytest.mark.slow  # renders the scene at full and reduced size: 9-11 s
 def test_the_target_judge_predicts_at_fewer_pixels_and_verifies_at_full(tmp_path, scene):
     model = _noisy(scene)
     full = CloseupJudge(scene, device="cpu")(model)

@@ -174,6 +174,7 @@ def test_cli_encode_errors(tmp_path, capsys, argv, message):
     assert not (tmp_path / "x.spc").exists()
 
 
+@pytest.mark.slow  # real scenes: 3-8 s each
 @pytest.mark.parametrize("scene", ["pdal_fourth_st_spz/fourth_st_inria.ply",
                                    "playcanvas_biker_guitar/biker_from_spz_inria.ply",
                                    "v3dg_donut_mipsplatting/fused.ply"])

@@ -234,6 +234,7 @@ def test_decode_preview_of_a_file_without_one_is_a_one_line_error(tmp_path, caps
     assert "give one of them" in capsys.readouterr().err and not out.exists()
 
 
+@pytest.mark.slow  # a sized encode with its preview: 12 s
 def test_encode_with_a_preview_keeps_the_whole_file_within_the_target(tmp_path, capsys):
     """--preview-size: the scene is made for what the preview leaves; without retraining there
     are no prefix scores, so the preview shows until the last layer."""

@@ -36,6 +36,7 @@ def _same(a: Quantized, b: Quantized) -> bool:
         all(np.array_equal(a.indices[k], b.indices[k]) for k in a.indices)
 
 
+@pytest.mark.slow  # twelve pairs of codebook fits: 11 s
 @settings(max_examples=12, deadline=None)
 @given(st.integers(0, 1000), st.sampled_from([None, 8, 40]), st.booleans(), st.booleans())
 def test_a_remembered_fit_is_the_fresh_fit(cloud, seed, count, scalar, weighted):

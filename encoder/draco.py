@@ -204,16 +204,19 @@ def encode_as_set(points: np.ndarray, ordered: OrderedBlob, step: float, origin:
 def apart(points: np.ndarray) -> np.ndarray:
     """``points`` (float32) with every repeat of a row moved along x by as many units in the last
     place as earlier copies it has: no two rows coincide, and each stays in its grid cell unless
-    it sat on a cell's edge (then the pairing of :func:`encode_as_set` notices)."""
-    _, inverse, counts = np.unique(points, axis=0, return_inverse=True, return_counts=True)
-    if counts.max(initial=1) == 1:
+    it sat on a cell's edge (then the pairing of :func:`encode_as_set` notices). Rows compare as
+    their 12 bytes (one sort, no copy when nothing repeats: the common case)."""
+    points = np.ascontiguousarray(points, dtype=np.float32)
+    rows = points.view(np.dtype((np.void, 12))).ravel()
+    order = np.argsort(rows, kind="stable")
+    repeat = rows[order[1:]] == rows[order[:-1]]
+    if not repeat.any():
         return points
-    inverse = inverse.reshape(-1)
-    order = np.argsort(inverse, kind="stable")
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    first = np.concatenate([[True], ~repeat])
+    group_start = np.flatnonzero(first)[np.cumsum(first) - 1]
     copy = np.empty(len(points), np.int32)
-    copy[order] = np.arange(len(points)) - np.repeat(starts, counts)
-    out = np.array(points, dtype=np.float32, copy=True)
+    copy[order] = np.arange(len(points)) - group_start
+    out = points.copy()
     x = out[:, 0].view(np.int32)
     x += copy  # adjacent binary32 values for finite x away from the largest
     return out

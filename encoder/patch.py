@@ -125,27 +125,21 @@ def _in_input_order(positions: PatchPositions, n: int) -> StoredPositions:
     return StoredPositions(positions, np.arange(n, dtype=np.int64))
 
 
-def _draco_candidates(xyz: np.ndarray, step: float, origin: np.ndarray, bits: int,
-                      set_saving: float | None) -> list[StoredPositions]:
-    """Draco's sequential coding of the grid and its kd-tree coding of the same grid (the layer
-    reordered as Draco decodes it, :func:`.draco.encode_as_set`) where that saves at least
-    ``set_saving`` bits per point (None: never): a kd-tree blob decodes more slowly."""
+def _draco_coding(xyz: np.ndarray, step: float, origin: np.ndarray, bits: int,
+                  set_saving: float | None) -> StoredPositions | None:
+    """Draco's coding of the grid: its kd-tree coding (the layer reordered as Draco decodes it,
+    :func:`.draco.encode_as_set`) where that saves at least ``set_saving`` bits per point over
+    the sequential coding (None: never), whose blobs decode faster; else the sequential coding.
+    None when Draco does not keep the points."""
     encoded = encode_ordered(xyz, step, origin, bits)
     if encoded is None:
-        return []
-    out = [_in_input_order(PatchPositions.draco(encoded.blob, encoded.positions), len(xyz))]
+        return None
     unordered = None if set_saving is None else encode_as_set(xyz, encoded, step, origin, bits)
     if unordered is not None and \
             8 * (len(encoded.blob) - len(unordered.blob)) >= set_saving * len(xyz):
-        out.append(StoredPositions(PatchPositions.draco(unordered.blob, unordered.positions),
-                                   unordered.order))
-    return out
-
-
-def _smallest(candidates: list[StoredPositions]) -> StoredPositions:
-    """The candidate whose section is smallest once compressed (the first among equals)."""
-    sizes = [len(zlib.compress(pack_positions(c.positions))) for c in candidates]
-    return candidates[int(np.argmin(sizes))]
+        return StoredPositions(PatchPositions.draco(unordered.blob, unordered.positions),
+                               unordered.order)
+    return _in_input_order(PatchPositions.draco(encoded.blob, encoded.positions), len(xyz))
 
 
 def on_input_grid(xyz: np.ndarray, steps: np.ndarray, mode: str, set_saving: float | None = 0.0
@@ -153,19 +147,22 @@ def on_input_grid(xyz: np.ndarray, steps: np.ndarray, mode: str, set_saving: flo
     """Positions that lie on the power-of-two grid of ``steps`` (:func:`input_grid`), stored on it.
 
     QUANT16 (delta-coded along the Morton order, then the section's codec) decodes them bit for
-    bit. In draco mode, Draco's codings of the same grid are tried too and the smallest stored
-    section kept: on fourth_st sequential Draco takes 232 kB where QUANT16 takes 311 kB, and
-    decodes at most 4.4e-7 off (Draco dequantizes in binary32: under a hundredth of the grid's
-    step, yet 0.2-0.45 dB in the viewer at fourth_st's transparent point, where co-located
-    Gaussians of different layers then sort differently, docs/LOG.md 21.1)."""
+    bit. In draco mode, Draco's coding of the same grid (:func:`_draco_coding`) is tried too and
+    the smaller stored section kept: on fourth_st sequential Draco takes 232 kB where QUANT16
+    takes 311 kB, and decodes at most 4.4e-7 off (Draco dequantizes in binary32: under a
+    hundredth of the grid's step, yet 0.2-0.45 dB in the viewer at fourth_st's transparent point,
+    where co-located Gaussians of different layers then sort differently, docs/LOG.md 21.1)."""
     xyz64 = np.asarray(xyz, np.float64)
     exact = _in_input_order(PatchPositions.quant16(xyz, steps, xyz64.min(axis=0)), len(xyz))
     if mode != "draco" or not np.all(steps == steps[0]):
         return exact
     origin, bits = grid_for(xyz64, float(steps[0]))
-    close = [c for c in _draco_candidates(xyz, float(steps[0]), origin, bits, set_saving)
-             if np.abs(c.positions.decode() - xyz64[c.order]).max() <= steps[0] / 16]
-    return _smallest(close + [exact])  # Draco's binary32 grid must stay well inside the cells
+    draco = _draco_coding(xyz, float(steps[0]), origin, bits, set_saving)
+    # Draco's binary32 grid must stay well inside the input's cells
+    if draco is None or np.abs(draco.positions.decode() - xyz64[draco.order]).max() > steps[0] / 16:
+        return exact
+    stored = [len(zlib.compress(pack_positions(c.positions))) for c in (draco, exact)]
+    return draco if stored[0] < stored[1] else exact
 
 
 def encode_positions(xyz: np.ndarray, mode: str, bits: int = DEFAULT_POSITION_BITS,
@@ -189,9 +186,9 @@ def encode_positions(xyz: np.ndarray, mode: str, bits: int = DEFAULT_POSITION_BI
         origin, _ = grid_for(xyz, 1.0)
         span = float((xyz.max(axis=0) - origin).max())
         step = max(span, 1e-30) / ((1 << bits) - 1)
-        candidates = _draco_candidates(xyz, step, origin, bits, set_saving)
-        if candidates:
-            return _smallest(candidates)
+        draco = _draco_coding(xyz, step, origin, bits, set_saving)
+        if draco is not None:
+            return draco
         mode, bits = "quant16", min(bits, 16)
     if mode == "float16":
         return _in_input_order(PatchPositions.float16(xyz), n)

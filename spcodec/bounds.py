@@ -17,8 +17,9 @@ from functools import lru_cache
 
 import numpy as np
 
+from .container import CLUSTER_DTYPE
 from .draco_io import decode_points
-from .sections import PatchPositions, SketchCluster
+from .sections import PatchPositions, SketchCluster, draco_runs
 
 ROBUST_PERCENTILES = (2, 98)
 """The percentiles of each axis the robust box spans (the viewer's framing rule)."""
@@ -29,28 +30,26 @@ SIGNIFICANT_DIGITS = 4
 
 def scene_positions(sketch: Iterable[SketchCluster], patches: Iterable[PatchPositions]) -> np.ndarray:
     """(N, 3) float32: every position a decoder computes, the sketch's and every patch layer's."""
-    parts = [_sketch_positions(_draco_runs(list(sketch))), *(p.decode() for p in patches if len(p))]
+    parts = [_sketch_positions(_draco_blobs(list(sketch))), *(p.decode() for p in patches if len(p))]
     return np.concatenate(parts)
 
 
-def _draco_runs(clusters: list[SketchCluster]) -> tuple[tuple[bytes, int], ...]:
-    """Each Draco blob of the sketch with its point count: a blob holds the points of the cluster
-    that carries it and of the blob-less clusters after it ([R-47])."""
-    runs: list[list] = []
-    for cluster in clusters:
-        if cluster.draco:
-            runs.append([cluster.draco, 0])
-        if runs:
-            runs[-1][1] += cluster.point_count
-    return tuple((blob, count) for blob, count in runs if count)
+def _draco_blobs(clusters: list[SketchCluster]) -> tuple[tuple[bytes, int], ...]:
+    """Each Draco blob of the sketch with its point count, grouped as a decoder groups them
+    (:func:`.sections.draco_runs`, [R-47])."""
+    records = np.zeros(len(clusters), dtype=CLUSTER_DTYPE)
+    records["point_count"] = [c.point_count for c in clusters]
+    records["draco_length"] = [len(c.draco) for c in clusters]
+    positions = b"".join(c.draco for c in clusters)
+    return tuple((positions[r.start:r.stop], r.points) for r in draco_runs(records) if r.points)
 
 
 @lru_cache(maxsize=2)
-def _sketch_positions(runs: tuple[tuple[bytes, int], ...]) -> np.ndarray:
+def _sketch_positions(blobs: tuple[tuple[bytes, int], ...]) -> np.ndarray:
     """The sketch's decoded points: an encoder writes the same sketch in every trial file it
     sizes, so the last ones are kept (a blob's hash is computed once, then cached by Python)."""
     points = np.concatenate([decode_points(blob, count, f"sketch Draco blob {i}")
-                             for i, (blob, count) in enumerate(runs)] or [np.zeros((0, 3), np.float32)])
+                             for i, (blob, count) in enumerate(blobs)] or [np.zeros((0, 3), np.float32)])
     points.flags.writeable = False
     return points
 

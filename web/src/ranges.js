@@ -71,13 +71,10 @@ export async function streamSpc(url, { sink, planLayers, maxLayer = Infinity, fe
   }
   const size = length ?? first.range.size;
   let head = await readAll(first);
-  const gzip = head.length >= 2 && head[0] === GZIP_MAGIC[0] && head[1] === GZIP_MAGIC[1];
-  if (!gzip && head.length >= FIXED_HEADER_BYTES) {
-    const headerSize = new DataView(head.buffer, head.byteOffset, head.byteLength).getUint32(16, true);
-    if (headerSize > head.length && headerSize <= size) {  // an unusually long header block
-      const more = await readAll(await fetchRange(head.length, headerSize - 1, onRequest));
-      head = concat(head, more);
-    }
+  const headerSize = declaredHeaderSize(head);
+  if (headerSize > head.length && headerSize <= size) {  // an unusually long header block
+    const more = await readAll(await fetchRange(head.length, headerSize - 1, onRequest));
+    head = concat(head, more);
   }
   const layers = tryPlan(planLayers, head);
   await sink(head);
@@ -162,10 +159,15 @@ const MAX_HELD_HEAD = 1 << 20;
 /** How many bytes of a file's start the planner needs: a first request's, or the whole header
  * block of a plain .spc whose header says it is longer (at most MAX_HELD_HEAD). */
 function headBytes(start) {
+  return Math.max(FIRST_REQUEST_BYTES, Math.min(declaredHeaderSize(start), MAX_HELD_HEAD));
+}
+
+/** The header block's length a plain .spc's fixed header declares (`header_size`, spec 3.1);
+ * 0 for a gzip-wrapped file or bytes too short to say. */
+function declaredHeaderSize(start) {
   const gzip = start.length >= 2 && start[0] === GZIP_MAGIC[0] && start[1] === GZIP_MAGIC[1];
-  if (gzip || start.length < FIXED_HEADER_BYTES) return FIRST_REQUEST_BYTES;
-  const headerSize = new DataView(start.buffer, start.byteOffset, start.byteLength).getUint32(16, true);
-  return Math.max(FIRST_REQUEST_BYTES, Math.min(headerSize, MAX_HELD_HEAD));
+  if (gzip || start.length < FIXED_HEADER_BYTES) return 0;
+  return new DataView(start.buffer, start.byteOffset, start.byteLength).getUint32(16, true);
 }
 
 /** Bytes `first..last` of the stream that starts at byte `base` of the file at `url`. Offsets

@@ -208,8 +208,9 @@ def test_a_size_targeted_file_is_the_same_with_and_without_the_memories(single_t
 def test_grids_that_decode_alike_are_rendered_once_and_measure_alike(single_torch_thread,
                                                                      monkeypatch):
     """Positions already on a coarse power-of-two grid are stored on it whatever the bits
-    asked: those grids render once and get that render's MSE, which equals a render of their
-    own; a scene off any grid renders every grid."""
+    asked: those grids store the input exactly, add no error and are not rendered; a scene off
+    any grid renders only the calibration grids of the displacement model."""
+    from spcodec.encoder import allocation
     from spcodec.encoder.allocation import position_options
     from spcodec.encoder.config import AllocationConfig, EncoderConfig
     from spcodec.imaging import render
@@ -228,16 +229,49 @@ def test_grids_that_decode_alike_are_rendered_once_and_measure_alike(single_torc
     on_grid.means[:] = np.round(on_grid.means / step) * step
     grids = position_options(on_grid, rows, config, small, device="cpu")
     per_set = 2 * small.views
-    # the reference (one set), then one set for 8 bits (coarser than the input's grid) and
-    # one for 10, 12 and 14 together
-    assert len(calls) == 3 * per_set
-    assert grids[1].distortion == grids[2].distortion == grids[3].distortion
+    # the reference (one set), then one set for 8 bits (coarser than the input's grid); 10, 12
+    # and 14 store the input as it is
+    assert len(calls) == 2 * per_set
+    assert grids[1].distortion == grids[2].distortion == grids[3].distortion == 0.0
     assert grids[1].bits_per_gaussian == grids[3].bits_per_gaussian
-    assert grids[0].distortion > grids[1].distortion
+    assert grids[0].distortion > 0.0
+    calls.clear()
     alone = position_options(on_grid, rows, config,
                              dataclasses.replace(small, position_bits=(14,)), device="cpu")
-    assert alone[0].distortion == grids[3].distortion
+    assert alone[0] == grids[3] and not calls
 
     calls.clear()
     position_options(scene, rows, config, small, device="cpu")
-    assert len(calls) == (1 + len(small.position_bits)) * per_set
+    assert len(calls) == (1 + len(set(allocation.POSITION_RENDERS))) * per_set
+
+
+def test_training_views_are_placed_once_per_scene_content(monkeypatch):
+    """A size target asks for the search's views four times: they are placed once per scene
+    content and settings, equal to a fresh placement; other content or settings place again."""
+    from spcodec.encoder import allocation
+    from spcodec.encoder.config import AllocationConfig, EncoderConfig
+    from spcodec.imaging import views
+
+    scene = make_scene(2, blobs=300).cloud
+    small = AllocationConfig(views=2, resolution=32)
+    config = EncoderConfig(patch=FAST)
+    placed = []
+    real = views.sample_views
+    monkeypatch.setattr(views, "sample_views", lambda *a, **k: placed.append(1) or real(*a, **k))
+    allocation._FRAMINGS.clear()
+    first = allocation.training_framings(scene, config, small)
+    again = allocation.training_framings(scene.subset(np.arange(len(scene))), config, small)
+    def poses(cameras) -> list:
+        return [(c.name, c.width, c.fx, c.cx, c.world_to_camera.tolist()) for c in cameras]
+
+    assert len(placed) == 1
+    assert all(poses(again[name]) == poses(first[name]) for name in ("orbit", "close"))
+    assert poses(first["orbit"]) == poses(real(scene, 2, resolution=(32, 32), split="train",
+                                               up=config.up, seed=config.seed))
+    first["orbit"][0].world_to_camera[0, 3] += 1.0  # a caller's copy: the memory keeps its own
+    assert poses(allocation.training_framings(scene, config, small)["orbit"]) == poses(again["orbit"])
+    allocation.training_framings(scene, config, dataclasses.replace(small, views=3))
+    moved = scene.subset(np.arange(len(scene)))
+    moved.means[0] += 1.0
+    allocation.training_framings(moved, config, small)
+    assert len(placed) == 3

@@ -96,9 +96,11 @@ def configure(p: argparse.ArgumentParser) -> None:
                       "decimal; KiB, MiB binary); sets how many patch Gaussians survive pruning "
                       f"and, below {patch.codebook_size * config.TARGET_GROUPS_PER_ENTRY:,} of "
                       "them, shrinks the codebooks to match; with "
-                      "--no-retrain, wherever some precision fits every Gaussian, keeps them all "
-                      "and chooses each attribute's codebook by rate and predicted distortion "
-                      "instead (default: none, the preset's downsample)")
+                      "--no-retrain, chooses each attribute's codebook and the position grid by "
+                      "rate and predicted distortion: above the preset's file for every "
+                      "Gaussian; below it, whichever renders closest of every Gaussian coarser, "
+                      "fewer at a precision between, or the preset's precision pruned "
+                      "(default: none, the preset's downsample)")
     size.add_argument("--target-psnr", type=Bounded(float, 10, 100), metavar="DB",
                       help="the smallest file whose close-up (eval's views at half the distance, "
                       "800x800) reaches DB against the input: %(type)s; sets how many patch "

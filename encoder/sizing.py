@@ -49,6 +49,11 @@ LANDING_TRIES = 3
 """Searches a quality target makes at most, each ending with one judgement at the evaluation's
 resolution (:meth:`QualityTarget.landed`)."""
 
+PRUNED_STEPS = 3
+"""Below the preset's file, the steps from the preset's pruned count to every Gaussian: the
+counts between, spaced geometrically, each at the precision that would fit it, are also tried
+pruned to the target (:meth:`SizeTarget._best_below`)."""
+
 ALLOCATION_TRIALS = 4
 """Real writes the precision search may make to land its allocation under the target."""
 
@@ -158,11 +163,11 @@ class SizeTarget(Sizing):
 
     With retraining, and without ``config.allocation``, the least important patch Gaussians are
     dropped until the file fits. Without retraining and with ``config.allocation`` set, every
-    Gaussian stays wherever some precision fits them all: the rate-distortion search
-    (:mod:`.allocation`) picks each attribute's codebook for the bytes left, finer than the
-    preset's above its file, coarser below it; only a target under the coarsest such file
-    prunes. A target the preset's own file already fills (within the fit's slack) is left to
-    it."""
+    Gaussian stays above the preset's file: the rate-distortion search (:mod:`.allocation`)
+    picks each attribute's codebook for the bytes left, finer than the preset's. Below it,
+    every Gaussian at a coarser precision competes on renders with fewer Gaussians at
+    precisions between and with the preset's file pruned to the target. A target the preset's
+    own file already fills (within the fit's slack) is left to it."""
 
     def __init__(self, config: EncoderConfig, original: GaussianCloud | None = None,
                  device: str = "auto") -> None:
@@ -178,6 +183,8 @@ class SizeTarget(Sizing):
         """Training-view PSNR of the allocated file and of the pruned one, when compared."""
         self.inherited_verdict: tuple[float, float] | None = None
         """The verdict of an earlier size target of the same scene (:meth:`inherit`)."""
+        self.allocated_count = 0
+        """How many patch Gaussians the allocated precision keeps."""
         self.planned: tuple[int, bytes] | None = None
         """The planner's file at the count it chose (the pruned file a precision is compared
         with: writing it again repeats the planner's quantization)."""
@@ -217,7 +224,7 @@ class SizeTarget(Sizing):
                     not plan.full_bytes * (1 - FIT_SLACK) <= self.target <= plan.full_bytes:
                 self.allocate(patch, weights, writer, encoder, plan.full_bytes, rows, plan.count)
                 if self.allocated is not None:
-                    return len(patch)
+                    return self.allocated_count
             return plan.count
         margin = TRAIN_MARGIN if retrain.snap_step is None else SNAP_MARGIN
         return min(len(patch), math.ceil(plan.count * (1 + margin)))
@@ -225,11 +232,11 @@ class SizeTarget(Sizing):
     def allocate(self, patch: GaussianCloud, weights: np.ndarray, writer: SceneWriter,
                  encoder: PatchEncoder, full_bytes: int, rows: np.ndarray | None,
                  pruned_count: int) -> None:
-        """Choose the precision that fills the target with every Gaussian kept: above the
-        preset's file when it is predicted to beat the preset's precision; below it when its
-        file renders closer to the input than the preset's file pruned to ``pruned_count``
-        (:meth:`_render_psnr`: pruning is no small change, which the model cannot
-        predict)."""
+        """Choose the precision that fills the target: above the preset's file, every
+        Gaussian at the precision predicted to beat the preset's; below it, every Gaussian at
+        a coarser precision, fewer at one between, or the preset's file pruned to
+        ``pruned_count``, whichever renders closest to the input (:meth:`_best_below`:
+        pruning is no small change, which the model cannot predict)."""
         start = time.perf_counter()
         search = self.precision_search(patch, weights, encoder, rows) if self.inherited is None \
             else self.inherited.rescaled(len(patch))
@@ -261,20 +268,77 @@ class SizeTarget(Sizing):
             measured.append((candidate.bytes, size))
             other, ratio = _size_line(measured, other)
         record = {"preset_distortion": preset.distortion}
-        if chosen is not None and full_bytes > self.target:
-            scores = self._compared(data, writer, encoder, patch, weights, pruned_count, record)
-            if scores[0] <= scores[1]:
-                chosen = None
+        count, size = len(patch), written
+        if full_bytes > self.target:
+            chosen, count, data = self._best_below(search, preset, chosen, data,
+                                                   (aim - other) / ratio,
+                                                   writer, encoder, patch, weights,
+                                                   pruned_count, record)
+            size = None if data is None else len(data)
         record["seconds"] = round(time.perf_counter() - start, 2)
         if chosen is not None:
             self.allocated = chosen.patch_config(encoder.config)
+            self.allocated_count = count
             self.search, self.chosen = search, chosen
             record.update(options=chosen.describe(), predicted_distortion=chosen.distortion,
                           predicted_distortions={a: o.distortion
                                                  for a, o in chosen.options.items()})
-            self.record["rate"].update(predicted_bytes=written)
+            self.record["rate"].update(predicted_bytes=size, predicted_count=count)
             self.record["rate"].pop("note", None)
         self.record["rate"]["precision"] = record
+
+    def _best_below(self, search: PrecisionSearch, preset: Allocation, every: Allocation | None,
+                    data: bytes | None, budget: float, writer: SceneWriter, encoder: PatchEncoder,
+                    patch: GaussianCloud, weights: np.ndarray, pruned_count: int, record: dict
+                    ) -> tuple[Allocation | None, int, bytes | None]:
+        """Below the preset's file, the file that renders closest to the input
+        (:meth:`_render_psnr`) of: every Gaussian at the precision that fits (``every``, None
+        when none does), the preset's precision pruned to ``pruned_count``, and between them
+        the precisions that would fit counts between those two (:data:`PRUNED_STEPS`), each
+        pruned to the target. Returns the allocation (None: the preset's), how many it keeps
+        and its file.
+
+        Pruning drops a Gaussian whole and a coarse codebook moves every one a little; the
+        linearized model prices the latter only, and near the curve's coarse end its
+        predictions fail by several dB, so the trade is judged on renders."""
+        if every is not None and self._inherits_verdict():
+            scores = self._compared(data, writer, encoder, patch, weights, pruned_count, record)
+            return (every, len(patch), data) if scores[0] > scores[1] else (None, pruned_count, None)
+        candidates = [(every, len(patch), data)] if every is not None else []
+        for step in range(1, PRUNED_STEPS):
+            share = (max(pruned_count, 1) / len(patch)) ** (1 - step / PRUNED_STEPS)
+            between = search.for_bytes(budget / share)
+            if between is None or between == preset or any(between == c[0] for c in candidates):
+                continue
+            coder = PatchEncoder(between.patch_config(encoder.config), seed=encoder.seed,
+                                 jobs=encoder.jobs)
+            written: dict[int, bytes] = {}
+            plan = plan_count(self.target, len(patch),
+                              _trial(writer, coder, patch, weights, self.target, written),
+                              FIT_SLACK)
+            if pruned_count < plan.count < len(patch):
+                candidates.append((between, plan.count, written[plan.count]
+                                   if plan.count in written else
+                                   pruned_file(writer, coder, patch, weights, plan.count).data))
+        if not candidates:
+            return None, pruned_count, None
+        planned = self.planned
+        candidates.append((None, pruned_count, planned[1] if planned is not None and
+                           planned[0] == pruned_count else
+                           pruned_file(writer, encoder, patch, weights, pruned_count).data))
+        scores = self._render_psnr([file for _, _, file in candidates])
+        record["candidates"] = [
+            {"options": "preset" if allocation is None else allocation.describe(),
+             "gaussians": count, "bytes": len(file), "training_view_psnr": round(score, 3)}
+            for (allocation, count, file), score in zip(candidates, scores)]
+        best = max(range(len(candidates)), key=lambda i: scores[i])
+        self.verdict = (scores[0], scores[-1]) if every is not None else None
+        return candidates[best]
+
+    def _inherits_verdict(self) -> bool:
+        """Whether an earlier encode's every-Gaussian-or-pruned verdict was decisive."""
+        earlier = self.inherited_verdict
+        return earlier is not None and earlier[0] - earlier[1] >= DECISIVE_DB
 
     def _compared(self, data: bytes, writer: SceneWriter, encoder: PatchEncoder,
                   patch: GaussianCloud, weights: np.ndarray, pruned_count: int,

@@ -125,10 +125,10 @@ STILL_MISSED = (
      "-0.27 dB at 0.748x, from -1.1 / -1.3: positions coded as a set and no sketch, LOG 23.1, "
      "23.4) and biker against SOG (-2.0 / -1.4 at 0.741x, from -3.4 / -3.2)", "23.4"),
     ("No holes: adjacent no-retrain points at most 3 dB apart (orbit)",
-     "met on kacytran; missed on donut: the first 5 dB step filled by the wider precision ladder "
-     "(35.32 -> 40.24 dB at 0.45x, LOG 20.8), the second is the sketch kept or dropped on a "
-     "linearized prediction, now +4.8 / +3.2 dB at 0.5x -> 0.55x; rendering the sketch's error "
-     "narrows it to 3.0 / 3.5, not committed (LOG 21.1)", "20.8"),
+     "met on kacytran; missed on donut: below the preset's file a size target now also weighs "
+     "fewer Gaussians at a precision between (D-31), +3.2 to +5.0 dB at 0.125x-0.45x SPZ, and the "
+     "largest step between 0.125x, 0.25x, 0.35x, 0.45x, 0.5x ... transparent fell from 9.5 to "
+     "6.1 dB (0.35x -> 0.45x); the curve's low end climbs 5 dB per 1.3-2x of bytes", "24.1"),
     ("No-retrain `--target-psnr` in seconds to a minute",
      "missed: 84 CPU s on kacytran (from 106, LOG 21.2; judged at 400 px, the answer at 800); it "
      "landed at 40.00 dB for a 40 dB target", "20.5"),
@@ -142,9 +142,10 @@ STILL_MISSED = (
      "1.58-1.72x with 512 k leaves under a root of 8 (byte-identical merges 15 % cheaper, Dask's "
      "watchers slowed; the root's merge of 2 M is the gap and peaks at 3.27 GB)", "23.5"),
     ("No-retrain targeted encode at most 2x the balanced encode's time",
-     "missed: 3.0-4.0x on kacytran, donut, guitar and fourth_st (from 2.7-4.1x with a cheaper "
-     "contexts check and one verdict for both encodes, LOG 23.3), and 0-26 % less again without "
-     "the sketch (D-30); the precision search is a third to two fifths of what is left", "23.3"),
+     "met at guitar 0.75x (1.75x); missed at seven other points, 2.07-3.09x on guitar, "
+     "fourth_st, kacytran and donut (from 2.36-4.01x: two position grids rendered and the rest "
+     "predicted, views placed once, LOG 24.2); below the preset's file D-31's candidates add "
+     "3-11 CPU s; fourth_st's time is its trials' full-count quantization", "24.2"),
     ("A prefix within 30 % of the bytes within 3 dB of the whole file",
      "missed, and out of reach at SPZ/4 on guitar and donut", "15.8"),
     ("`spcodec eval --reference` 3x faster with the render cache",

@@ -312,13 +312,13 @@ class SizeTarget(Sizing):
                 continue
             coder = PatchEncoder(between.patch_config(encoder.config), seed=encoder.seed,
                                  jobs=encoder.jobs)
-            written: dict[int, bytes] = {}
+            nearest: dict[int, bytes] = {}
             plan = plan_count(self.target, len(patch),
-                              _trial(writer, coder, patch, weights, self.target, written),
+                              _trial(writer, coder, patch, weights, self.target, nearest),
                               FIT_SLACK)
             if pruned_count < plan.count < len(patch):
-                candidates.append((between, plan.count, written[plan.count]
-                                   if plan.count in written else
+                candidates.append((between, plan.count, nearest[plan.count]
+                                   if plan.count in nearest else
                                    pruned_file(writer, coder, patch, weights, plan.count).data))
         if not candidates:
             return None, pruned_count, None
@@ -332,7 +332,9 @@ class SizeTarget(Sizing):
              "gaussians": count, "bytes": len(file), "training_view_psnr": round(score, 3)}
             for (allocation, count, file), score in zip(candidates, scores)]
         best = max(range(len(candidates)), key=lambda i: scores[i])
-        self.verdict = (scores[0], scores[-1]) if every is not None else None
+        # an encode made again may take this verdict only where it was every Gaussian or none
+        self.verdict = (scores[0], scores[-1]) if every is not None and \
+            best in (0, len(candidates) - 1) else None
         return candidates[best]
 
     def _inherits_verdict(self) -> bool:
@@ -349,10 +351,9 @@ class SizeTarget(Sizing):
         same precision against the same pruning at the same target, and the sketch's Gaussians,
         coded alike in both files, shift both scores; rendering both files at every training
         view is a sizeable part of a size target's time."""
-        earlier = self.inherited_verdict
-        inherited = earlier is not None and earlier[0] - earlier[1] >= DECISIVE_DB
+        inherited = self._inherits_verdict()
         if inherited:
-            scores = earlier
+            scores = self.inherited_verdict
         else:
             planned = self.planned
             pruned = planned[1] if planned is not None and planned[0] == pruned_count else \

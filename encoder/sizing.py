@@ -517,18 +517,21 @@ class QualityTarget(Sizing):
     def allocate(self, patch: GaussianCloud, weights: np.ndarray, writer: SceneWriter,
                  encoder: PatchEncoder, rows: np.ndarray | None) -> PatchEncoder:
         """The smallest point of the precision curve whose file, every patch Gaussian kept,
-        reaches the target (bisected: the judged PSNR rises along the curve), and its encoder.
-        A target beyond the finest point is a UsageError that names what that point reaches."""
+        reaches the target (bisected on the judge's small views: the judged PSNR rises along
+        the curve; then verified at the evaluation's resolution, stepping up while short), and
+        its encoder. A target beyond the finest point is a UsageError that names what that
+        point reaches."""
         start = time.perf_counter()
         curve = self.precision_search(patch, weights, encoder, rows).curve()
         encoders = [PatchEncoder(point.patch_config(encoder.config), seed=encoder.seed,
                                  jobs=encoder.jobs) for point in curve]
         judged: dict[int, float] = {}
+        files: dict[int, bytes] = {}
 
         def psnr_at(i: int) -> float:
             if i not in judged:
-                data = pruned_file(writer, encoders[i], patch, weights, len(patch)).data
-                judged[i] = self.judge(decode_layers(data).cloud)
+                files[i] = pruned_file(writer, encoders[i], patch, weights, len(patch)).data
+                judged[i] = self.judge(decode_layers(files[i]).cloud)
             return judged[i]
 
         lo, hi = -1, len(curve) - 1  # lo: assumed short; hi: known (below: checked) to reach
@@ -544,13 +547,22 @@ class QualityTarget(Sizing):
                 hi = mid
             else:
                 lo = mid
+        # the bisection judged small views, and the target is promised at the evaluation's
+        # own resolution: a point short there is followed up the curve, not pruned from
+        verified = {hi: self.judge.verify(decode_layers(files[hi]).cloud, predicted=judged[hi])}
+        while verified[hi] < self.target and hi < len(curve) - 1:
+            hi += 1
+            predicted = psnr_at(hi)  # writes the point's file
+            verified[hi] = self.judge.verify(decode_layers(files[hi]).cloud, predicted=predicted)
+        full = verified[hi]
         self.allocated = curve[hi].patch_config(encoder.config)
-        self.allocated_psnr = judged[hi]
+        self.allocated_psnr = full
         self.record["quality_target"] = {
             "target_psnr": self.target,
             "precision": {"options": curve[hi].describe(), "curve_points": len(curve),
-                          "chosen_point": hi, "psnr": round(judged[hi], 3),
+                          "chosen_point": hi, "psnr": round(full, 3),
                           "judged": {str(i): round(v, 3) for i, v in sorted(judged.items())},
+                          "verified": {str(i): round(v, 3) for i, v in sorted(verified.items())},
                           "seconds": round(time.perf_counter() - start, 2)}}
         return encoders[hi]
 

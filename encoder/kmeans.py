@@ -245,8 +245,12 @@ def _distinct_rows(rows: np.ndarray, limit: int) -> np.ndarray | None:
 
 
 def _unique_rows(rows: np.ndarray) -> np.ndarray:
-    """Distinct float16 rows in ascending lexicographic order (as ``np.unique(axis=0)``)."""
-    rows = np.asarray(rows).astype(np.float16)
+    """Distinct float16 rows in ascending lexicographic order (as ``np.unique(axis=0)``).
+
+    Zeros are made positive first: numpy 2.4's float16 sort leaves -0.0 interleaved with the
+    negatives when +0.0 is also present, so the 1-D unique kept repeats (a hypothesis test of
+    the ladder found it: -1, -0, -1, -0 ...); the two zeros decode alike."""
+    rows = np.asarray(rows).astype(np.float16) + np.float16(0.0)
     if rows.shape[1] == 1:  # the 1-D sort is several times faster than the row-wise one
         return np.unique(rows[:, 0])[:, None]
     return np.unique(rows, axis=0)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from spcodec.encoder.kmeans import codebook_ladder, exhaustive_codebook, nearest, sampled_codebook
@@ -150,6 +150,7 @@ def test_warm_started_smaller_codebooks_are_as_good_as_fresh_ones(dim: int) -> N
 
 @given(st.integers(1, 3000), st.sampled_from([1, 2, 3]),
        st.lists(st.integers(1, 256), min_size=1, max_size=5), st.integers(0, 2**31))
+@example(3000, 1, [17], 1)  # -0.0 and +0.0 among rounded values: numpy's float16 sort misorders
 def test_a_codebook_ladder_gives_each_size_at_most_that_many_distinct_entries(
         n: int, dim: int, sizes: list[int], seed: int) -> None:
     rng = np.random.default_rng(seed)

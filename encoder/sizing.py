@@ -300,10 +300,19 @@ class SizeTarget(Sizing):
 
         Pruning drops a Gaussian whole and a coarse codebook moves every one a little; the
         linearized model prices the latter only, and near the curve's coarse end its
-        predictions fail by several dB, so the trade is judged on renders."""
-        if every is not None and self._inherits_verdict():
-            scores = self._compared(data, writer, encoder, patch, weights, pruned_count, record)
-            return (every, len(patch), data) if scores[0] > scores[1] else (None, pruned_count, None)
+        predictions fail by several dB, so the trade is judged on renders. An encode made
+        again takes the first one's verdict where every Gaussian won by :data:`DECISIVE_DB`."""
+        earlier = self.inherited_verdict
+        if every is not None and earlier is not None and earlier[0] - earlier[1] >= DECISIVE_DB:
+            # an encode made again without its sketch weighs the same precision against the
+            # same pruning at the same target; the sketch's Gaussians, coded alike in both
+            # files, shifted both scores, and rendering every file again is a sizeable part of
+            # a size target's time
+            self.verdict = earlier
+            record["training_view_psnr"] = {"every_gaussian": round(earlier[0], 3),
+                                            "pruned": round(earlier[1], 3),
+                                            "from": "the encode with the sketch"}
+            return every, len(patch), data
         candidates = [(every, len(patch), data)] if every is not None else []
         for step in range(1, PRUNED_STEPS):
             share = (max(pruned_count, 1) / len(patch)) ** (1 - step / PRUNED_STEPS)
@@ -336,35 +345,6 @@ class SizeTarget(Sizing):
         self.verdict = (scores[0], scores[-1]) if every is not None and \
             best in (0, len(candidates) - 1) else None
         return candidates[best]
-
-    def _inherits_verdict(self) -> bool:
-        """Whether an earlier encode's every-Gaussian-or-pruned verdict was decisive."""
-        earlier = self.inherited_verdict
-        return earlier is not None and earlier[0] - earlier[1] >= DECISIVE_DB
-
-    def _compared(self, data: bytes, writer: SceneWriter, encoder: PatchEncoder,
-                  patch: GaussianCloud, weights: np.ndarray, pruned_count: int,
-                  record: dict) -> tuple[float, float]:
-        """Training-view PSNR of the allocated file ``data`` and of the preset's file pruned to
-        ``pruned_count`` (:meth:`_render_psnr`). An encode made again without its sketch takes
-        the first encode's verdict when that was decisive (:data:`DECISIVE_DB`): it weighs the
-        same precision against the same pruning at the same target, and the sketch's Gaussians,
-        coded alike in both files, shift both scores; rendering both files at every training
-        view is a sizeable part of a size target's time."""
-        inherited = self._inherits_verdict()
-        if inherited:
-            scores = self.inherited_verdict
-        else:
-            planned = self.planned
-            pruned = planned[1] if planned is not None and planned[0] == pruned_count else \
-                pruned_file(writer, encoder, patch, weights, pruned_count).data
-            scores = tuple(self._render_psnr([data, pruned]))
-        self.verdict = scores
-        record["training_view_psnr"] = {"every_gaussian": round(scores[0], 3),
-                                        "pruned": round(scores[1], 3)}
-        if inherited:
-            record["training_view_psnr"]["from"] = "the encode with the sketch"
-        return scores
 
     def _render_psnr(self, files: list[bytes]) -> list[float]:
         """Mean PSNR (dB) of each file against the input over the search's training views,

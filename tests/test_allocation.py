@@ -298,8 +298,8 @@ def test_a_sizing_made_again_for_the_same_scene_measures_its_sensitivity_and_ren
 @given(st.floats(20.0, 60.0), st.floats(-3.0, 3.0))
 def test_an_encode_made_again_takes_only_a_decisive_verdict_of_the_first(scene, every, margin):
     """The render comparison of every Gaussian at a coarser precision against the pruned preset
-    file: the encode made again without the sketch takes the first encode's verdict when it was
-    decisive (DECISIVE_DB or more), and renders both of its own files otherwise."""
+    file: the encode made again without the sketch takes the first encode's verdict when every
+    Gaussian won it by DECISIVE_DB or more, and renders its own files otherwise."""
     import types
 
     from spcodec.encoder import sizing as sizing_module
@@ -307,23 +307,36 @@ def test_an_encode_made_again_takes_only_a_decisive_verdict_of_the_first(scene, 
     pruned = every - margin
     rendered = []
     config = _config("balanced", 10**6)
+    nothing_between = types.SimpleNamespace(for_bytes=lambda budget: None)
+    coarse = types.SimpleNamespace(describe=lambda: {"coarse": True})  # every Gaussian's point
+
+    def best_below(sizing, data):
+        record: dict = {}
+        chosen = sizing._best_below(nothing_between, "preset", coarse, data, 1.0, None, None,
+                                    scene, None, 10, record)
+        return chosen, record
+
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(sizing_module.SizeTarget, "_render_psnr",
                       lambda self, files: rendered.append(list(files)) or [every, pruned])
         patch.setattr(sizing_module, "pruned_file",
                       lambda *args: types.SimpleNamespace(data=b"pruned"))
         first = sizing_module.SizeTarget(config, scene, "cpu")
-        record: dict = {}
-        assert first._compared(b"file", None, None, scene, None, 10, record) == (every, pruned)
-        assert rendered == [[b"file", b"pruned"]] and "from" not in record["training_view_psnr"]
+        chosen, record = best_below(first, b"file")
+        assert rendered == [[b"file", b"pruned"]] and "training_view_psnr" not in record
+        assert chosen == ((coarse, len(scene), b"file") if every >= pruned else
+                          (None, 10, b"pruned"))
+        assert first.verdict == (every, pruned)
         first.search = PrecisionSearch.__new__(PrecisionSearch)  # a search was made
         again = sizing_module.SizeTarget(config, scene, "cpu")
         again.inherit(first)
-        record = {}
-        assert again._compared(b"again", None, None, scene, None, 10, record) == (every, pruned)
+        chosen, record = best_below(again, b"again")
     decisive = every - pruned >= sizing_module.DECISIVE_DB
     assert len(rendered) == (1 if decisive else 2)
-    assert ("from" in record["training_view_psnr"]) == decisive
+    assert ("training_view_psnr" in record) == decisive
+    if decisive:
+        assert chosen == (coarse, len(scene), b"again")
+        assert record["training_view_psnr"]["from"] == "the encode with the sketch"
     assert again.verdict == (every, pruned)
 
 

@@ -16,6 +16,7 @@ import sys
 import warnings
 from typing import Callable, NoReturn, Sequence
 
+from spcodec.allocator import keep_freed_memory
 from spcodec.errors import FormatError, Interrupted, SpcodecError, TruncatedError, UsageError
 
 from . import attach_preview, conformance, decode, demo, embed, encode, info, render, serve, tile
@@ -67,6 +68,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version, or a bad argument already reported
         return exc.code if isinstance(exc.code, int) else EXIT_USAGE
+    keep_freed_memory()  # this process renders: see spcodec.allocator
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _warn

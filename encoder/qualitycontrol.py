@@ -17,15 +17,19 @@ and every judgement is of a real file (real codebooks, Draco, zlib), decoded and
    only raises the quality further. A retrained patch that falls short with every Gaussian kept
    is written anyway (it is the best this encode makes), and the report says so.
 
-Bisection stops once the bracket is within :data:`COUNT_TOLERANCE` of the patch (a handful of
-judgements). The searches judge the close-ups at 400 pixels (:class:`TargetJudge`, a quarter of
+The count search judges one tolerance fewer than every Gaussian first (after a precision chosen
+for the target that is often already short), then guesses each next count from the importance
+it prunes (:func:`smallest_reaching`), until the bracket is within :data:`COUNT_TOLERANCE` of
+the patch (a handful of judgements). The searches judge the close-ups at 400 pixels (:class:`TargetJudge`, a quarter of
 the rendering), and the answer once more at the evaluation's 800, where the target is promised:
-when it falls short there, the search goes on with the small views' offset corrected. The
-original's close-ups come from the evaluation's render cache, and go to it.
+when it falls short there, the search goes on with the small views' offset corrected; those
+renders of the answer are kept for the closing evaluation. The original's close-ups come from the
+evaluation's render cache, and go to it.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -70,9 +74,10 @@ class CloseupJudge:
         self.cameras = framing.cameras
         self.references = list(framing.images)
 
-    def __call__(self, scene: GaussianCloud) -> float:
-        """Mean PSNR (dB) of ``scene`` over the close-up views."""
-        drawn = render_views(scene, self.cameras, self.config)
+    def __call__(self, scene: GaussianCloud, remember: bool = False) -> float:
+        """Mean PSNR (dB) of ``scene`` over the close-up views. ``remember``: keep the renders
+        for the closing evaluation of the same scene (:func:`render_views`)."""
+        drawn = render_views(scene, self.cameras, self.config, remember)
         return float(np.mean([psnr(r, s) for r, s in zip(self.references, drawn)]))
 
 
@@ -108,7 +113,7 @@ class TargetJudge:
         if self._full is None:  # the original's renders at full size, when first needed
             self._full = self._full_judge()
         self.full_judgements += 1
-        full = self._full(scene)
+        full = self._full(scene, remember=True)  # the answer's, which the evaluation draws again
         if self._full is not self.search:
             searched = self.search(scene) if predicted is None else predicted + self.offset
             self.offset = searched - full
@@ -134,27 +139,89 @@ class QualityPlan:
 
 
 def fewest_reaching(target: float, upper: int, psnr_of: Callable[[int], float],
-                    known: dict[int, float] | None = None) -> QualityPlan:
+                    known: dict[int, float] | None = None,
+                    loss: Callable[[int], float] | None = None) -> QualityPlan:
     """The fewest of ``1..upper`` patch Gaussians whose file (``psnr_of(count)``, quality rising
     with the count) reaches ``target`` dB, to within :data:`COUNT_TOLERANCE` of ``upper``; all of
     them, not ``reached``, when even ``upper`` falls short. ``known``: counts already judged (a
-    caller that judged ``upper`` itself), which are not judged again."""
+    caller that judged ``upper`` itself), which are not judged again. ``loss``: what dropping
+    all but ``count`` costs, as :func:`smallest_reaching` guesses from (the pruned Gaussians'
+    importance); without it the counts are bisected."""
     judged = dict(known or {})
     if upper not in judged:
         judged[upper] = psnr_of(upper)
     if judged[upper] < target:
         return QualityPlan(upper, judged[upper], False, judged)
-    lo, hi = 0, upper  # lo: known (or assumed, at 0) to fall short; hi: known to reach
     slack = max(1, int(COUNT_TOLERANCE * upper))
+    # the top first: a precision chosen for the target leaves less than a step of the curve to
+    # prune, and a count one tolerance short of every Gaussian often falls short already
+    top = upper - slack
+    if top <= 0:
+        return QualityPlan(upper, judged[upper], True, judged)
+    if top not in judged:
+        judged[top] = psnr_of(top)
+    if judged[top] < target:
+        return QualityPlan(upper, judged[upper], True, judged)
+    count = smallest_reaching(target, 0, top, psnr_of, judged, slack, loss)
+    return QualityPlan(count, judged[count], True, judged)
+
+
+def smallest_reaching(target: float, lo: int, hi: int, psnr_of: Callable[[int], float],
+                      judged: dict[int, float], slack: int = 1,
+                      loss: Callable[[int], float] | None = None) -> int:
+    """The smallest ``x`` in ``lo+1..hi`` whose ``psnr_of(x)`` (rising with ``x``) reaches
+    ``target``, to within ``slack``: ``lo`` is known (or assumed) short and ``hi`` known to
+    reach, both kept so as the bracket shrinks; every judgement goes into ``judged``.
+
+    With ``loss`` (a predicted error, falling with ``x``) the next ``x`` is guessed, not
+    bisected: the judged MSE is taken as ``m0 + k * loss(x)`` through the two judgements
+    nearest the target, and the bracket is closed from the guess's side (a guess that reaches
+    is tried ``slack`` lower next). A judgement is a real file written, decoded and rendered
+    (seconds each); along a precision curve or a pruning order the error is near that line,
+    and a guided search takes about half of bisection's judgements. A guess that does not halve
+    the bracket is followed by a bisection, so the worst case is twice bisection's."""
+    slow = 0  # guesses in a row that did not halve the bracket
     while hi - lo > slack:
-        mid = (lo + hi) // 2
-        if mid not in judged:
-            judged[mid] = psnr_of(mid)
-        if judged[mid] >= target:
-            hi = mid
+        width = hi - lo
+        x = None if loss is None or slow >= 2 else _guess(target, lo, hi, judged, slack, loss)
+        slow = 0 if x is None else slow
+        if x is None:
+            x = (lo + hi) // 2
+        if x not in judged:
+            judged[x] = psnr_of(x)
+        if judged[x] >= target:
+            hi = x
         else:
-            lo = mid
-    return QualityPlan(hi, judged[hi], True, judged)
+            lo = x
+        slow = slow + 1 if 2 * (hi - lo) > width else 0
+    return hi
+
+
+def _guess(target: float, lo: int, hi: int, judged: dict[int, float], slack: int,
+           loss: Callable[[int], float]) -> int | None:
+    """The next ``x`` to judge inside ``(lo, hi)`` by :func:`smallest_reaching`'s line, or None
+    where two judgements do not give a line that falls (noise, or too few judged)."""
+    inside = {x: p for x, p in judged.items() if math.isfinite(p)}
+    short = [x for x, p in inside.items() if p < target]
+    reach = sorted((x for x, p in inside.items() if p >= target), key=lambda x: inside[x])
+    pair = ([max(short, key=lambda x: inside[x])] if short else []) + reach[:2 - bool(short)]
+    if len(pair) < 2:
+        return None
+    (xa, xb), (ea, eb) = pair, (loss(pair[0]), loss(pair[1]))
+    ma, mb = 10 ** (-inside[xa] / 10), 10 ** (-inside[xb] / 10)
+    if ea == eb or not (ma - mb) / (ea - eb) > 0:
+        return None
+    k = (ma - mb) / (ea - eb)
+    bound = (10 ** (-target / 10) - (mb - k * eb)) / k  # the largest loss that still reaches
+    low, high = lo + 1, hi  # the smallest x in (lo, hi] with loss(x) <= bound (loss falls)
+    while low < high:
+        mid = (low + high) // 2
+        if loss(mid) <= bound:
+            high = mid
+        else:
+            low = mid + 1
+    # close the bracket from the side the guess lies on: just under a reaching hi, just over lo
+    return min(max(low, lo + slack), hi - slack) if hi - lo > slack else None
 
 
 def check_reachable(target: float, plan: QualityPlan, retraining: bool) -> None:

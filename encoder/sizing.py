@@ -40,8 +40,14 @@ from .allocation import (
 )
 from .config import EncoderConfig, PatchConfig
 from .patch import PatchEncoder, PatchEncoding, Quantized
-from .prune import kept_count, prune_by_importance
-from .qualitycontrol import QualityPlan, TargetJudge, check_reachable, fewest_reaching
+from .prune import kept_count, prune_by_importance, pruned_weight
+from .qualitycontrol import (
+    QualityPlan,
+    TargetJudge,
+    check_reachable,
+    fewest_reaching,
+    smallest_reaching,
+)
 from .ratecontrol import FIT_SLACK, SNAP_MARGIN, TOLERANCE, TRAIN_MARGIN, fit_count, plan_count
 from .stages import SceneWriter, SketchOutcome
 
@@ -457,7 +463,7 @@ class QualityTarget(Sizing):
             # the chosen point was judged with every patch Gaussian: the same file
             known[len(patch)] = self.allocated_psnr
         files = _pruned_files(writer, encoder, patch, weights)
-        reach = self.landed(len(patch), files, known)
+        reach = self.landed(len(patch), files, known, pruned_weight(weights))
         check_reachable(self.target, reach, self.config.retrain is not None)
         short = [c for c, p in reach.judged.items() if p < self.target]
         self.record.setdefault("quality_target", {}).update({
@@ -468,12 +474,13 @@ class QualityTarget(Sizing):
             "judged_at_full_resolution": self.judge.full_judgements})
         return reach.count
 
-    def landed(self, upper: int, file_of: Callable[[int], bytes],
-               known: dict[int, float]) -> QualityPlan:
-        """:func:`fewest_reaching` with the judge's predictions, its answer then judged at the
-        evaluation's resolution: when that falls short of the target, the judge's offset is
-        taken from that file and the search goes on (at most :data:`LANDING_TRIES` times), so
-        the count returned is judged on the evaluation's own scale."""
+    def landed(self, upper: int, file_of: Callable[[int], bytes], known: dict[int, float],
+               loss: Callable[[int], float] | None = None) -> QualityPlan:
+        """:func:`fewest_reaching` with the judge's predictions (guided by ``loss``, the
+        importance pruned at a count), its answer then judged at the evaluation's resolution:
+        when that falls short of the target, the judge's offset is taken from that file and the
+        search goes on (at most :data:`LANDING_TRIES` times), so the count returned is judged on
+        the evaluation's own scale."""
         judged = dict(known)
         made: dict[int, bytes] = {}  # the files judged, so the answer is not encoded again
 
@@ -483,7 +490,8 @@ class QualityTarget(Sizing):
             return decode_layers(made[count]).cloud
 
         for _ in range(LANDING_TRIES):
-            reach = fewest_reaching(self.target, upper, lambda c: self.judge(decoded(c)), judged)
+            reach = fewest_reaching(self.target, upper, lambda c: self.judge(decoded(c)), judged,
+                                    loss)
             if not reach.reached:
                 return reach
             full = self.judge.verify(decoded(reach.count), predicted=reach.psnr)
@@ -514,20 +522,17 @@ class QualityTarget(Sizing):
                 judged[i] = self.judge(decode_layers(files[i]).cloud)
             return judged[i]
 
-        lo, hi = -1, len(curve) - 1  # lo: assumed short; hi: known (below: checked) to reach
+        hi = len(curve) - 1
         if psnr_at(hi) < self.target:
             raise UsageError(
                 f"--target-psnr {self.target:g} dB is out of reach without retraining: the finest "
                 f"precision, every Gaussian kept, reaches {judged[hi]:.2f} dB at the close-up "
                 "framing; ask for at most that, retrain (drop --no-retrain), or use --preset "
                 "transparent, which also stores positions finer and keeps every Gaussian apart")
-        while hi - lo > 1:
-            mid = (lo + hi) // 2
-            if psnr_at(mid) >= self.target:
-                hi = mid
-            else:
-                lo = mid
-        # the bisection judged small views, and the target is promised at the evaluation's
+        # from -1, assumed short, guided by each point's predicted distortion
+        hi = smallest_reaching(self.target, -1, hi, psnr_at, judged,
+                               loss=lambda i: curve[i].distortion)
+        # the search judged small views, and the target is promised at the evaluation's
         # own resolution: a point short there is followed up the curve, not pruned from
         verified = {hi: self.judge.verify(decode_layers(files[hi]).cloud, predicted=judged[hi])}
         while verified[hi] < self.target and hi < len(curve) - 1:
@@ -555,7 +560,7 @@ class QualityTarget(Sizing):
             quantized: Quantized, importance: np.ndarray) -> np.ndarray:
         """The fewest trained Gaussians that still reach the target."""
         found = self.landed(len(cloud), _quantized_files(writer, encoder, cloud, quantized,
-                                                         importance), {})
+                                                         importance), {}, pruned_weight(importance))
         self.record["quality_target"].update(count_retrained=found.count,
                                              psnr_retrained=round(found.psnr, 3),
                                              reached=found.reached)

@@ -100,3 +100,25 @@ def test_the_target_judge_predicts_at_fewer_pixels_and_verifies_at_full(tmp_path
     told.search = None  # given its own prediction, verify must not judge small again
     assert told.verify(model, predicted=small) == pytest.approx(full, abs=1e-9)
     assert told.offset == pytest.approx(small - full, abs=1e-9)
+
+
+def test_renders_remembered_by_the_judge_make_the_same_report_without_drawing(scene, monkeypatch):
+    """A quality target verifies its answer at the close-up framing and keeps those renders;
+    the closing evaluation of the same scene then scores them, to the bit, instead of drawing
+    them again, and a different scene is drawn as before."""
+    from spcodec.imaging import evaluate as evaluate_module
+
+    config = _config(None)
+    model = _noisy(scene)
+    monkeypatch.setattr(evaluate_module, "_REMEMBERED", {})
+    plain = evaluate_against_reference(model, scene, config)
+    cameras = reference_framing(scene, config, 0.5).cameras
+    render_views(model, cameras, config, remember=True)
+    reused = evaluate_against_reference(model, scene, config)
+    for ours, theirs in zip(plain.closeups[0].views + plain.views,
+                            reused.closeups[0].views + reused.views):
+        assert (ours.psnr, ours.ssim) == (theirs.psnr, theirs.ssim)
+    assert all(v.render_seconds == 0.0 for v in reused.closeups[0].views)  # scored, not drawn
+    assert all(v.render_seconds > 0.0 for v in reused.views)  # the sampled framing was not remembered
+    other = evaluate_against_reference(scene, scene, config)
+    assert all(v.render_seconds > 0.0 for v in other.closeups[0].views)

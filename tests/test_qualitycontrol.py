@@ -14,11 +14,13 @@ from spcodec.cli import main
 from spcodec.encoder.config import EncoderConfig, RetrainConfig
 from spcodec.encoder.pipeline import encode
 from spcodec.encoder.presets import aimed
+from spcodec.encoder.prune import prune_by_importance, pruned_weight
 from spcodec.encoder.qualitycontrol import (
     COUNT_TOLERANCE,
     CloseupJudge,
     check_reachable,
     fewest_reaching,
+    smallest_reaching,
 )
 from spcodec.errors import UsageError
 from spcodec.imaging.evaluate import EvalConfig, evaluate_against_reference
@@ -44,7 +46,71 @@ def test_fewest_reaching_finds_the_threshold_count(upper, share, slope):
     plan = fewest_reaching(30.0, upper, psnr_of)
     assert plan.reached and psnr_of(plan.count) >= 30.0 and plan.psnr == psnr_of(plan.count)
     assert plan.count - crossing <= max(1, COUNT_TOLERANCE * upper)
-    assert len(plan.judged) <= 2 + int(np.ceil(np.log2(1 / COUNT_TOLERANCE)))
+    # every Gaussian, one tolerance fewer (the top first), then bisection's
+    assert len(plan.judged) <= 3 + int(np.ceil(np.log2(1 / COUNT_TOLERANCE)))
+
+
+@given(st.integers(2, 5000), st.integers(1, 60), st.data())
+def test_a_guided_search_finds_the_smallest_reaching_whatever_its_guide(width, slack, data):
+    """smallest_reaching with any falling guide (a wrong one too) returns an x that reaches,
+    with x - slack short (or at the bracket's low end), in at most thrice bisection's
+    judgements plus one."""
+    slack = min(slack, width)
+    crossing = data.draw(st.integers(1, width), label="crossing")
+    guide = data.draw(st.sampled_from(["exact", "reversed", "flat", "steps"]), label="guide")
+    loss = {"exact": lambda x: 1.0 / (1 + x), "reversed": lambda x: float(width - x) ** 3,
+            "flat": lambda x: 1.0, "steps": lambda x: float((width - x) // 7)}[guide]
+    judged = {width: 40.0}
+    calls = []
+
+    def psnr_of(x: int) -> float:
+        calls.append(x)
+        return 30.0 + (x - crossing) * 0.01 + (0.0 if x >= crossing else -0.5)
+
+    found = smallest_reaching(30.0, 0, width, psnr_of, judged, slack, loss)
+    assert judged[found] >= 30.0 and found >= crossing
+    assert found - slack < crossing
+    assert len(calls) == len(set(calls))  # nothing judged twice
+    assert len(calls) <= 3 * int(np.ceil(np.log2(max(width / slack, 1)))) + 1
+
+
+@given(st.integers(2_000, 500_000), st.floats(0.05, 0.95), st.floats(1e-6, 1e-3),
+       st.floats(0.5, 20.0))
+def test_a_search_guided_by_the_pruned_weight_takes_few_judgements(upper, share, m0, gain):
+    """When the file's MSE is what the guide says (the kept file's error plus a multiple of the
+    importance pruned), the count is found in at most four judgements below every Gaussian,
+    where bisection to the same tolerance takes six."""
+    weights = np.random.default_rng(upper).pareto(1.5, upper)
+    loss = pruned_weight(weights)
+    total = loss(0)
+    target = -10 * np.log10(m0 * (1 + gain * loss(int(share * upper)) / total))
+
+    def psnr_of(count: int) -> float:
+        return float(-10 * np.log10(m0 * (1 + gain * loss(count) / total)))
+
+    plan = fewest_reaching(target, upper, psnr_of, {upper: psnr_of(upper)}, loss)
+    bisected = fewest_reaching(target, upper, psnr_of, {upper: psnr_of(upper)})
+    assert plan.reached and abs(plan.count - bisected.count) <= max(1, COUNT_TOLERANCE * upper)
+    assert len(plan.judged) - 1 <= 4 < len(bisected.judged) - 1
+
+
+def test_when_one_tolerance_less_falls_short_every_gaussian_is_kept_after_one_judgement():
+    calls = []
+
+    def psnr_of(count: int) -> float:
+        calls.append(count)
+        return 40.0 if count == 1000 else 39.0
+
+    plan = fewest_reaching(39.5, 1000, psnr_of, {1000: 40.0}, pruned_weight(np.ones(1000)))
+    assert plan.count == 1000 and plan.reached and calls == [1000 - COUNT_TOLERANCE * 1000]
+
+
+def test_the_pruned_weight_is_what_pruning_drops():
+    weights = np.array([0.5, 3.0, 0.0, 2.0, 1.0])
+    loss = pruned_weight(weights)
+    for keep in range(6):
+        kept = prune_by_importance(weights, keep)
+        assert loss(keep) == pytest.approx(weights.sum() - weights[kept].sum())
 
 
 def test_a_target_beyond_every_count_is_refused_with_the_best_reachable():
@@ -160,6 +226,7 @@ def test_a_precision_short_at_the_evaluations_resolution_steps_up_the_curve(smal
     class Point:
         def __init__(self, i: int) -> None:
             self.i = i
+            self.distortion = float(len(small) - i)  # the search's guide: it falls along the curve
 
         def patch_config(self, base):
             return dataclasses.replace(base, entry_counts={"point": self.i})

@@ -9,8 +9,6 @@ indices so the survivors keep their input order.
 
 from __future__ import annotations
 
-from typing import Callable
-
 import numpy as np
 
 from .config import PruneMethod
@@ -33,14 +31,6 @@ def prune_by_importance(weights: np.ndarray, keep: int) -> np.ndarray:
     """Indices of the ``keep`` largest weights (ties by index), sorted."""
     order = np.argsort(-np.asarray(weights, np.float64), kind="stable")
     return np.sort(order[:keep]).astype(np.int64)
-
-
-def pruned_weight(weights: np.ndarray) -> Callable[[int], float]:
-    """keep -> the weight :func:`prune_by_importance` drops when it keeps ``keep``: what a
-    quality search predicts the pruned file's error from (it falls as ``keep`` grows)."""
-    ordered = np.sort(np.asarray(weights, np.float64))[::-1]
-    beyond = np.concatenate([np.cumsum(ordered[::-1])[::-1], [0.0]])  # beyond[k]: sum past k
-    return lambda keep: float(beyond[min(max(int(keep), 0), len(ordered))])
 
 
 def prune_sampled(weights: np.ndarray, keep: int, seed: int) -> np.ndarray:

@@ -40,7 +40,7 @@ from .allocation import (
 )
 from .config import EncoderConfig, PatchConfig
 from .patch import PatchEncoder, PatchEncoding, Quantized
-from .prune import kept_count, prune_by_importance, pruned_weight
+from .prune import kept_count, prune_by_importance
 from .qualitycontrol import (
     QualityPlan,
     TargetJudge,
@@ -463,7 +463,7 @@ class QualityTarget(Sizing):
             # the chosen point was judged with every patch Gaussian: the same file
             known[len(patch)] = self.allocated_psnr
         files = _pruned_files(writer, encoder, patch, weights)
-        reach = self.landed(len(patch), files, known, pruned_weight(weights))
+        reach = self.landed(len(patch), files, known)
         check_reachable(self.target, reach, self.config.retrain is not None)
         short = [c for c, p in reach.judged.items() if p < self.target]
         self.record.setdefault("quality_target", {}).update({
@@ -474,13 +474,12 @@ class QualityTarget(Sizing):
             "judged_at_full_resolution": self.judge.full_judgements})
         return reach.count
 
-    def landed(self, upper: int, file_of: Callable[[int], bytes], known: dict[int, float],
-               loss: Callable[[int], float] | None = None) -> QualityPlan:
-        """:func:`fewest_reaching` with the judge's predictions (guided by ``loss``, the
-        importance pruned at a count), its answer then judged at the evaluation's resolution:
-        when that falls short of the target, the judge's offset is taken from that file and the
-        search goes on (at most :data:`LANDING_TRIES` times), so the count returned is judged on
-        the evaluation's own scale."""
+    def landed(self, upper: int, file_of: Callable[[int], bytes],
+               known: dict[int, float]) -> QualityPlan:
+        """:func:`fewest_reaching` with the judge's predictions, its answer then judged at the
+        evaluation's resolution: when that falls short of the target, the judge's offset is
+        taken from that file and the search goes on (at most :data:`LANDING_TRIES` times), so
+        the count returned is judged on the evaluation's own scale."""
         judged = dict(known)
         made: dict[int, bytes] = {}  # the files judged, so the answer is not encoded again
 
@@ -490,8 +489,7 @@ class QualityTarget(Sizing):
             return decode_layers(made[count]).cloud
 
         for _ in range(LANDING_TRIES):
-            reach = fewest_reaching(self.target, upper, lambda c: self.judge(decoded(c)), judged,
-                                    loss)
+            reach = fewest_reaching(self.target, upper, lambda c: self.judge(decoded(c)), judged)
             if not reach.reached:
                 return reach
             full = self.judge.verify(decoded(reach.count), predicted=reach.psnr)
@@ -560,7 +558,7 @@ class QualityTarget(Sizing):
             quantized: Quantized, importance: np.ndarray) -> np.ndarray:
         """The fewest trained Gaussians that still reach the target."""
         found = self.landed(len(cloud), _quantized_files(writer, encoder, cloud, quantized,
-                                                         importance), {}, pruned_weight(importance))
+                                                         importance), {})
         self.record["quality_target"].update(count_retrained=found.count,
                                              psnr_retrained=round(found.psnr, 3),
                                              reached=found.reached)

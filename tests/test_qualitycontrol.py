@@ -14,7 +14,6 @@ from spcodec.cli import main
 from spcodec.encoder.config import EncoderConfig, RetrainConfig
 from spcodec.encoder.pipeline import encode
 from spcodec.encoder.presets import aimed
-from spcodec.encoder.prune import prune_by_importance, pruned_weight
 from spcodec.encoder.qualitycontrol import (
     COUNT_TOLERANCE,
     CloseupJudge,
@@ -74,24 +73,29 @@ def test_a_guided_search_finds_the_smallest_reaching_whatever_its_guide(width, s
     assert len(calls) <= 3 * int(np.ceil(np.log2(max(width / slack, 1)))) + 1
 
 
-@given(st.integers(2_000, 500_000), st.floats(0.05, 0.95), st.floats(1e-6, 1e-3),
-       st.floats(0.5, 20.0))
-def test_a_search_guided_by_the_pruned_weight_takes_few_judgements(upper, share, m0, gain):
-    """When the file's MSE is what the guide says (the kept file's error plus a multiple of the
-    importance pruned), the count is found in at most four judgements below every Gaussian,
-    where bisection to the same tolerance takes six."""
-    weights = np.random.default_rng(upper).pareto(1.5, upper)
-    loss = pruned_weight(weights)
-    total = loss(0)
-    target = -10 * np.log10(m0 * (1 + gain * loss(int(share * upper)) / total))
+@given(st.integers(8, 80), st.floats(0.05, 0.95), st.floats(1e-6, 1e-3), st.floats(0.5, 20.0),
+       st.integers(0, 2**32 - 1))
+def test_a_search_guided_by_the_predicted_distortion_takes_few_judgements(points, share, m0,
+                                                                          gain, seed):
+    """Along a precision curve whose rendered MSE is what the search predicted (the finest
+    point's error plus a multiple of each point's predicted distortion), the smallest point
+    that reaches is found in at most four judgements below the finest, where bisection takes
+    log2 of the points."""
+    distortion = np.sort(np.random.default_rng(seed).pareto(1.0, points))[::-1].copy()
+    distortion[-1] = 0.0
 
-    def psnr_of(count: int) -> float:
-        return float(-10 * np.log10(m0 * (1 + gain * loss(count) / total)))
+    def psnr_of(i: int) -> float:
+        return float(-10 * np.log10(m0 * (1 + gain * distortion[i] / distortion[0])))
 
-    plan = fewest_reaching(target, upper, psnr_of, {upper: psnr_of(upper)}, loss)
-    bisected = fewest_reaching(target, upper, psnr_of, {upper: psnr_of(upper)})
-    assert plan.reached and abs(plan.count - bisected.count) <= max(1, COUNT_TOLERANCE * upper)
-    assert len(plan.judged) - 1 <= 4 < len(bisected.judged) - 1
+    answer = max(1, int(share * (points - 1)))
+    target = (psnr_of(answer - 1) + psnr_of(answer)) / 2  # between two points, clear of rounding
+    guided = {points - 1: psnr_of(points - 1)}
+    found = smallest_reaching(target, -1, points - 1, psnr_of, guided,
+                              loss=lambda i: float(distortion[i]))
+    bisected = {points - 1: psnr_of(points - 1)}
+    assert found == smallest_reaching(target, -1, points - 1, psnr_of, bisected)
+    assert psnr_of(found) >= target and (found == 0 or psnr_of(found - 1) < target)
+    assert len(guided) - 1 <= 4
 
 
 def test_when_one_tolerance_less_falls_short_every_gaussian_is_kept_after_one_judgement():
@@ -101,16 +105,8 @@ def test_when_one_tolerance_less_falls_short_every_gaussian_is_kept_after_one_ju
         calls.append(count)
         return 40.0 if count == 1000 else 39.0
 
-    plan = fewest_reaching(39.5, 1000, psnr_of, {1000: 40.0}, pruned_weight(np.ones(1000)))
+    plan = fewest_reaching(39.5, 1000, psnr_of, {1000: 40.0})
     assert plan.count == 1000 and plan.reached and calls == [1000 - COUNT_TOLERANCE * 1000]
-
-
-def test_the_pruned_weight_is_what_pruning_drops():
-    weights = np.array([0.5, 3.0, 0.0, 2.0, 1.0])
-    loss = pruned_weight(weights)
-    for keep in range(6):
-        kept = prune_by_importance(weights, keep)
-        assert loss(keep) == pytest.approx(weights.sum() - weights[kept].sum())
 
 
 def test_a_target_beyond_every_count_is_refused_with_the_best_reachable():

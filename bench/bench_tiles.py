@@ -25,6 +25,7 @@ the same count, and judges both against the input in a third-party renderer
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import re
@@ -41,6 +42,7 @@ import numpy as np
 from spcodec import GaussianCloud, read_ply, write_ply
 from spcodec.fileio import atomic_write
 from spcodec.ply import ply_bytes
+from spcodec.tiling.config import TilingConfig
 
 from scenes import CITY_BASES, REAL, city_scene, data_dir, load_scene, tiled_copies  # bench/ on sys.path
 
@@ -76,13 +78,18 @@ def run_one(args: argparse.Namespace) -> None:
         from spcodec.encoder import encode, preset_config
 
         cloud = load_scene(args.scene)
-        result = encode(cloud, preset_config("balanced"))
-        out = {"gaussians": len(cloud), "bytes": len(result.data)}
+        config = preset_config("balanced")
+        if args.sketch is not None:
+            config = dataclasses.replace(config, use_sketch=args.sketch)
+        result = encode(cloud, config)
+        out = {"gaussians": len(cloud), "bytes": len(result.data), "sketch": config.use_sketch}
     else:
-        from spcodec.tiling import TilingConfig, build_tileset
+        from spcodec.tiling import build_tileset
 
+        sketch = TilingConfig.sketch if args.sketch is None else args.sketch
         summary = build_tileset(args.input, args.output, TilingConfig(
-            leaf_size=args.leaf_size, branching=args.branching, workers=args.workers, keep_work=True))
+            leaf_size=args.leaf_size, branching=args.branching, workers=args.workers,
+            sketch=sketch, keep_work=True))
         per_level: dict[int, list[int]] = {}
         stack = [json.loads(summary.tileset.read_text())["root"]]
         while stack:
@@ -91,7 +98,7 @@ def run_one(args: argparse.Namespace) -> None:
             row = per_level.setdefault(extras["level"], [0, 0])
             row[0], row[1] = row[0] + extras["gaussians"], row[1] + extras["bytes"]
             stack.extend(tile.get("children", []))
-        out = {"gaussians": summary.input_gaussians, "encoded": summary.encoded_gaussians,
+        out = {"gaussians": summary.input_gaussians, "encoded": summary.encoded_gaussians, "sketch": sketch,
                "bytes": summary.bytes, "nodes": summary.nodes, "depth": summary.depth,
                "levels": {k: {"gaussians": g, "bytes": b} for k, (g, b) in sorted(per_level.items())},
                "partition_s": round(summary.partition_seconds, 2),
@@ -207,7 +214,7 @@ def level_near(doc: dict, target: float) -> tuple[int, list[dict]]:
 def decimate(args: argparse.Namespace) -> None:
     """Coarse level against splat-transform's decimation to the same count, per scene."""
     from spcodec.decoder import decode
-    from spcodec.tiling import TilingConfig, build_tileset
+    from spcodec.tiling import build_tileset
 
     tool = splat_transform()
     shown = subprocess.run([tool, "-v"], capture_output=True, text=True)
@@ -220,7 +227,7 @@ def decimate(args: argparse.Namespace) -> None:
         leaf = args.leaf_size or 1 << int(np.ceil(np.log2(n / 16)))
         start = time.perf_counter()
         summary = build_tileset(original, work / "tileset", TilingConfig(
-            leaf_size=leaf, branching=4, workers=0))
+            leaf_size=leaf, branching=4, workers=0, sketch=args.sketch))
         built = time.perf_counter() - start
         doc = json.loads(summary.tileset.read_text())
         level, chosen = level_near(doc, n / 16)
@@ -245,12 +252,14 @@ def decimate(args: argparse.Namespace) -> None:
         row["met"] = all(row["level_psnr"][k] >= row["decimated_psnr"][k] for k in ("orbit_db", "close_db"))
         print(json.dumps(row), flush=True)
         rows.append(row)
-    doc = {"command": "python bench/bench_tiles.py decimate --work DIR --scenes "
-                      + " ".join(args.scenes),
+    sketch = [] if args.sketch == TilingConfig.sketch else ["--sketch" if args.sketch else "--no-sketch"]
+    doc = {"command": " ".join(["python bench/bench_tiles.py decimate --work DIR --scenes",
+                                *args.scenes, *sketch]),
            "splat_transform": version, "renderer": "../shared/tools/two-framings.sh (PlayCanvas)",
            "rows": rows}
-    RESULTS.write_text(json.dumps(doc, indent=1) + "\n")
-    print(f"wrote {RESULTS.relative_to(REPO)}")
+    results = Path(args.results)
+    results.write_text(json.dumps(doc, indent=1) + "\n")
+    print(f"wrote {results}")
 
 
 def main() -> None:
@@ -277,6 +286,9 @@ def main() -> None:
     r.add_argument("--workers", type=int, default=0)
     r.add_argument("--leaf-size", type=int, default=65536)
     r.add_argument("--branching", type=int, default=4)
+    r.add_argument("--sketch", action=argparse.BooleanOptionalAction,
+                   help="the encodes build a sketch (default: the mode's own: the tiling's for "
+                   "tiled, the preset's for single)")
     g = sub.add_parser("merges")
     g.add_argument("tileset")
     g.add_argument("--nodes", type=int, default=4)
@@ -287,6 +299,9 @@ def main() -> None:
     d.add_argument("--scenes", nargs="+", default=list(FRAMINGS), choices=sorted(FRAMINGS))
     d.add_argument("--leaf-size", type=int, default=0,
                    help="default: the power of two at or above 1/16 of the scene, so the root is that level")
+    d.add_argument("--sketch", action=argparse.BooleanOptionalAction,
+                   default=TilingConfig.sketch, help="nodes' encodes build a sketch (default: %(default)s)")
+    d.add_argument("--results", default=str(RESULTS), help="the JSON written (default: %(default)s)")
     args = p.parse_args()
     {"make": make, "compare": compare, "run-one": run_one, "merges": merges,
      "decimate": decimate}[args.command](args)

@@ -31,6 +31,10 @@ def configure(p: argparse.ArgumentParser) -> None:
                    "one (default: %(default)s)")
     p.add_argument("--preset", default=defaults.preset,
                    help="the no-retrain preset every node is encoded with (default: %(default)s)")
+    p.add_argument("--sketch", action=argparse.BooleanOptionalAction, default=defaults.sketch,
+                   help="let every node's encode build a sketch, as the preset would in one file; "
+                   "in nodes it cost CPU and bought no quality at equal bytes (default: no "
+                   "sketch)")
     p.add_argument("--workers", type=Bounded(int, 0), default=defaults.workers, metavar="N",
                    help="local worker processes, one thread each, %(type)s; 0 encodes in this "
                    "process (default: %(default)s)")
@@ -52,8 +56,8 @@ def run(args: argparse.Namespace) -> int:
     from spcodec.tiling import TilingConfig, build_tileset
 
     config = TilingConfig(leaf_size=args.leaf_size, branching=args.branching, preset=args.preset,
-                          workers=args.workers, cluster=args.cluster, seed=args.seed,
-                          keep_work=args.keep_work)
+                          sketch=args.sketch, workers=args.workers, cluster=args.cluster,
+                          seed=args.seed, keep_work=args.keep_work)
     reporter = StageReporter(enabled=not args.quiet, delay=PROGRESS_DELAY)
     try:
         summary = build_tileset(args.input, args.output, config, reporter.stage)

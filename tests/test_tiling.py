@@ -340,6 +340,74 @@ def test_a_second_run_does_no_work(built, scene_ply):
     assert {p.name: p.stat().st_mtime_ns for p in (out / "nodes").iterdir()} == stamps
 
 
+def node_files(out: Path) -> list[Path]:
+    return sorted((out / "nodes").glob("*.spc"))
+
+
+def has_sketch(node: Path) -> tuple[bool, bool]:
+    """(the encoder settings stored in the node say ``use_sketch``, its sketch layer holds
+    Gaussians): every file has a sketch layer, empty without a sketch."""
+    from spcodec.container import LayerKind
+    from spcodec.decoder import inspect
+
+    info = inspect(node)
+    return (info.metadata["settings"]["use_sketch"],
+            any(layer.kind == LayerKind.SKETCH and layer.gaussian_count > 0
+                for layer in info.header.layers))
+
+
+def test_nodes_are_encoded_without_a_sketch_by_default(built):
+    """A tileset's nodes skip the sketch (TilingConfig.sketch, measured in docs/LOG.md): the
+    setting reaches every node's encoder, which stores it in the file."""
+    out, _ = built
+    assert TilingConfig().sketch is False
+    assert [has_sketch(node) for node in node_files(out)] == [(False, False)] * len(node_files(out))
+
+
+def test_the_sketch_setting_reaches_the_node_and_redoes_it(small_ply, tmp_path):
+    """``sketch=True`` encodes a node as the preset would: the scene in one node (a leaf of
+    700 is too small for the encoder's clusters) gets its curves as sketch. Switching back
+    re-encodes it, since the setting is in the digest, and the node's sketch layer is empty."""
+    whole = dict(leaf_size=2048, branching=2, workers=0)
+    first = build_tileset(small_ply, tmp_path, TilingConfig(**whole, sketch=True))
+    assert first.nodes == 1 and [has_sketch(node) for node in node_files(tmp_path)] == [(True, True)]
+    again = build_tileset(small_ply, tmp_path, TilingConfig(**whole))
+    assert again.encoded_nodes == 1 and again.bytes != first.bytes
+    assert [has_sketch(node) for node in node_files(tmp_path)] == [(False, False)]
+
+
+def test_a_preset_without_a_sketch_never_gets_one():
+    from spcodec.tiling.build import NodeJob, encoder_config
+
+    def job(preset: str, sketch: bool) -> NodeJob:
+        return NodeJob("n", (), "digest", ".", preset, 0, 4, sketch)
+
+    assert encoder_config(job("balanced", True)).use_sketch is True
+    assert encoder_config(job("balanced", False)).use_sketch is False
+    assert encoder_config(job("transparent", True)).use_sketch is False
+
+
+@pytest.mark.parametrize("module", ["spcodec", "tiling"])
+@pytest.mark.parametrize("flag, expected", [([], False), (["--sketch"], True), (["--no-sketch"], False)])
+def test_both_clis_pass_the_sketch_setting(module, flag, expected, scene_ply, tmp_path, monkeypatch):
+    import spcodec.tiling.__main__ as tiling_main
+    from spcodec import tiling
+    from spcodec.cli import main as spcodec
+    from spcodec.errors import UsageError
+
+    seen = []
+
+    def build(input_path, out_dir, config, progress=None):
+        seen.append(config)
+        raise UsageError("stopped after reading the settings")
+
+    monkeypatch.setattr(tiling, "build_tileset", build)
+    monkeypatch.setattr(tiling_main, "build_tileset", build)
+    args = [str(scene_ply), "-o", str(tmp_path / "out"), "--workers", "0", *flag]
+    assert (spcodec(["tile", *args]) if module == "spcodec" else tiling_main.main(args)) == 2
+    assert [config.sketch for config in seen] == [expected]
+
+
 @pytest.mark.slow  # starts a Dask cluster: 20-80 s on a busy 2-core machine
 def test_two_local_workers_retry_a_failed_node_and_a_rerun_resumes(small_ply, tmp_path,
                                                                     monkeypatch):

@@ -24,6 +24,9 @@ def parser() -> argparse.ArgumentParser:
                    help=f"children per node and merge reduction, 2, 4 or 8 (default "
                         f"{defaults.branching})")
     p.add_argument("--preset", default=defaults.preset, help="encoder preset of every node")
+    p.add_argument("--sketch", action=argparse.BooleanOptionalAction, default=defaults.sketch,
+                   help="build a sketch in every node's encode (default: no sketch; it did not "
+                        "pay in nodes)")
     p.add_argument("--workers", type=int, default=defaults.workers,
                    help="local worker processes; 0 runs in this process")
     p.add_argument("--cluster", help="address of a running Dask scheduler (tcp://host:8786)")
@@ -38,8 +41,8 @@ def parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     config = TilingConfig(leaf_size=args.leaf_size, branching=args.branching, preset=args.preset,
-                          workers=args.workers, cluster=args.cluster, seed=args.seed,
-                          keep_work=args.keep_work)
+                          sketch=args.sketch, workers=args.workers, cluster=args.cluster,
+                          seed=args.seed, keep_work=args.keep_work)
     reporter = StageReporter(enabled=not args.quiet, delay=2.0)
     try:
         summary = build_tileset(args.input, args.output, config, reporter.stage)

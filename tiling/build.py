@@ -37,7 +37,7 @@ from .rows import cloud_to_rows, rows_to_cloud
 FAIL_ONCE_ENV = "SPCODEC_TILING_FAIL_ONCE"
 """Test hook: node ids (comma-separated) whose first attempt raises, to exercise retries."""
 
-FORMAT_VERSION = 4
+FORMAT_VERSION = 5
 """Bumped when a node's content would change for the same input (part of every digest)."""
 
 
@@ -52,6 +52,8 @@ class NodeJob:
     preset: str
     seed: int
     branching: int
+    sketch: bool
+    """Whether the encode may build a sketch (:attr:`.config.TilingConfig.sketch`)."""
 
 
 def build_node(job: NodeJob, children: list[dict]) -> dict:
@@ -110,11 +112,15 @@ def encoder_config(job: NodeJob):
     One process per encode (``n_jobs=1``): nodes run side by side on the engine's workers, one
     core each, and a worker may not start processes of its own; a pool per small encode would
     also cost more to start than it saves. ``n_jobs`` changes no byte of the file, so it is no
-    part of the digest (:meth:`EncoderConfig.to_json` leaves it out).
+    part of the digest (:meth:`EncoderConfig.to_json` leaves it out). ``job.sketch`` can only
+    take the preset's sketch away, never add one to a preset that has none; ``use_sketch`` is in
+    the digest, so switching it re-encodes every node.
     """
     from spcodec.encoder import preset_config
 
-    return dataclasses.replace(preset_config(job.preset), seed=job.seed, n_jobs=1)
+    config = preset_config(job.preset)
+    return dataclasses.replace(config, seed=job.seed, n_jobs=1,
+                               use_sketch=config.use_sketch and job.sketch)
 
 
 def node_digest(job: NodeJob, child_digests: list[str], settings: dict) -> str:

@@ -26,6 +26,11 @@ class TilingConfig:
     leaf_size: int = 65536
     branching: int = 4
     preset: str = "balanced"
+    sketch: bool = False
+    """Whether the nodes' encodes build a sketch (``--sketch``). Off by default: in a tileset's
+    nodes, leaves and merged inner nodes alike, the sketch's cluster search cost a third of a
+    node's CPU where it found no cluster and, where it did, its files were worse at equal bytes
+    (docs/LOG.md, issue 39). It can only take the preset's sketch away, never add one."""
     workers: int = 2
     cluster: str | None = None
     seed: int = 0

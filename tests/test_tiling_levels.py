@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from spcodec.cloud import GaussianCloud
@@ -106,18 +106,24 @@ def turn(cloud: GaussianCloud, quat: np.ndarray, factor: float, shift: np.ndarra
 
 
 @given(seed=st.integers(0, 2 ** 16), log_factor=st.floats(-4, 4))
+@example(seed=65, log_factor=0.0)  # a pair 50-100 of its widths apart: 3.016 against 3.010
+@example(seed=1718, log_factor=-2.0)  # a neighbour swapped by rounding
 def test_pair_costs_do_not_depend_on_where_the_scene_is_its_turn_or_its_units(seed, log_factor):
     """The cost is a divergence between shapes plus a colour distance: moving, turning or scaling
-    the whole scene changes neither (the centre-distance cost did scale with the units). Within
-    float32's rounding of the moved centres, in which the costs are computed."""
+    the whole scene changes neither (the centre-distance cost did scale with the units, by up
+    to e^4 here). Within float32's rounding, in which the costs are computed: for thin
+    Gaussians far apart it moved a cost by 0.2 %."""
     rng = np.random.default_rng(seed)
     cloud = random_cloud(rng, 40)
     quat = rng.normal(size=4)
     moved = turn(cloud, quat / np.linalg.norm(quat), float(np.exp(log_factor)), rng.normal(0, 10, 3))
-    i, j, cost = pair_costs(cloud)
-    i2, j2, cost2 = pair_costs(moved)
-    assert np.array_equal(i, i2) and np.array_equal(j, j2)
-    np.testing.assert_allclose(cost2, cost, rtol=1e-3, atol=1e-3)
+    before = {(a, b): c for a, b, c in zip(*pair_costs(cloud))}
+    after = {(a, b): c for a, b, c in zip(*pair_costs(moved))}
+    common = sorted(before.keys() & after.keys())
+    # a neighbour tied to rounding may swap in or out of a candidate list, rarely
+    assert len(common) >= 0.97 * max(len(before), len(after))
+    np.testing.assert_allclose([after[k] for k in common], [before[k] for k in common],
+                               rtol=1e-2, atol=1e-3)
 
 
 @given(seed=st.integers(0, 2 ** 16))

@@ -193,8 +193,12 @@ def print_summary(stats: dict, stream: TextIO | None = None) -> None:
         if rate.get("note"):
             print_(f"  note: {rate['note']}")
         options = rate.get("precision", {}).get("options")
-        if options:  # the precision search kept every Gaussian (encoder/allocation.py)
-            print_("  every Gaussian kept; " + precision_line(options)
+        if options:  # the precision search's choice (encoder/allocation.py)
+            kept, total = stats.get("patch_gaussians"), stats.get("gaussians")
+            count = ("every Gaussian kept" if kept is None or total is None
+                     or kept + stats.get("sketch_gaussians", 0) >= total
+                     else f"{kept + stats.get('sketch_gaussians', 0):,} of {total:,} Gaussians kept")
+            print_(f"  {count}; " + precision_line(options)
                    + (", the sketch dropped for precision"
                    if stats.get("sketch", {}).get("dropped_for_precision") else ""))
     aim = stats.get("quality_target")

@@ -158,3 +158,17 @@ def test_the_summary_of_an_encode_without_evaluation_says_how_to_measure_it():
     stream = io.StringIO()
     progress.print_summary({k: v for k, v in stats.items() if k != "evaluation"}, stream)
     assert "quality" not in stream.getvalue()  # a --no-retrain encode is never judged
+
+
+@pytest.mark.parametrize("kept, line", [(10, "every Gaussian kept"), (6, "6 of 10 Gaussians kept")])
+def test_the_summary_of_a_size_target_says_how_many_gaussians_its_precision_kept(kept, line):
+    """Below the preset's file a size target may prune at the precision it chose: the summary
+    names the count, not "every Gaussian kept"."""
+    stats = {"gaussians": 10, "bytes": 100, "sketch_gaussians": 0, "patch_gaussians": kept,
+             "sketch": {}, "patch_layers": 1, "sections": {"PATCH_ATTRIBUTES": 60},
+             "seconds": {}, "output": "o.spc",
+             "rate": {"target_bytes": 100, "predicted_bytes": 100, "precision": {
+                 "options": {"SCALE": {"entry_dim": 1, "entries": 64}}}}}
+    stream = io.StringIO()
+    progress.print_summary(stats, stream)
+    assert f"  {line}; codebooks" in stream.getvalue()

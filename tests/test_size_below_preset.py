@@ -40,8 +40,10 @@ class Curve:
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.booleans(), st.lists(st.integers(0, 2 * PATCH), min_size=2, max_size=2),
-       st.lists(st.floats(10.0, 60.0), min_size=4, max_size=4, unique=True))
+@given(st.booleans(), st.lists(st.integers(0, 2 * PATCH), min_size=sizing_module.PRUNED_STEPS - 1,
+                               max_size=sizing_module.PRUNED_STEPS - 1),
+       st.lists(st.floats(10.0, 60.0), min_size=sizing_module.PRUNED_STEPS + 1,
+                max_size=sizing_module.PRUNED_STEPS + 1, unique=True))
 def test_the_file_that_renders_closest_is_kept(every, counts, scores):
     """Counts between the preset's pruned file and every Gaussian, spaced geometrically, each at
     the precision that would fit it, are pruned to the target; a count that keeps no more than the

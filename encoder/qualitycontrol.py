@@ -178,8 +178,8 @@ def smallest_reaching(target: float, lo: int, hi: int, psnr_of: Callable[[int], 
     is tried ``slack`` lower next). A judgement is a real file written, decoded and rendered
     (seconds each); along a precision curve, whose points carry the search's predicted
     distortion, the error is near that line, and the guided search took 3-4 judgements where
-    bisection took 7. A guess that does not halve
-    the bracket is followed by a bisection, so the worst case is twice bisection's."""
+    bisection took 7. Two guesses in a row that do not halve the bracket are followed by a
+    bisection: the worst case is thrice bisection's."""
     slow = 0  # guesses in a row that did not halve the bracket
     while hi - lo > slack:
         width = hi - lo
@@ -221,7 +221,7 @@ def _guess(target: float, lo: int, hi: int, judged: dict[int, float], slack: int
         else:
             low = mid + 1
     # close the bracket from the side the guess lies on: just under a reaching hi, just over lo
-    return min(max(low, lo + slack), hi - slack) if hi - lo > slack else None
+    return min(max(low, lo + slack), hi - slack)
 
 
 def check_reachable(target: float, plan: QualityPlan, retraining: bool) -> None:

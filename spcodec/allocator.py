@@ -15,7 +15,6 @@ glibc's own tunables (``GLIBC_TUNABLES``, ``MALLOC_*_``) keeps them.
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import os
 
 M_TRIM_THRESHOLD = -1
@@ -36,13 +35,12 @@ def keep_freed_memory() -> bool:
     True when they were set."""
     if any(name in os.environ for name in _USER_SETTINGS):
         return False
-    name = ctypes.util.find_library("c")
-    try:
-        libc = ctypes.CDLL(name) if name else None
-        mallopt = getattr(libc, "mallopt", None)
-        gnu = getattr(libc, "gnu_get_libc_version", None)
-    except OSError:
+    try:  # the symbols the interpreter was linked with, the C library's among them
+        libc = ctypes.CDLL(None)
+    except (OSError, TypeError):  # Windows has no such handle
         return False
+    mallopt = getattr(libc, "mallopt", None)
+    gnu = getattr(libc, "gnu_get_libc_version", None)
     if mallopt is None or gnu is None:  # not glibc: musl, macOS, Windows
         return False
     return bool(mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD)) and bool(

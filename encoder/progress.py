@@ -194,10 +194,7 @@ def print_summary(stats: dict, stream: TextIO | None = None) -> None:
             print_(f"  note: {rate['note']}")
         options = rate.get("precision", {}).get("options")
         if options:  # the precision search's choice (encoder/allocation.py)
-            kept, total = stats.get("patch_gaussians"), stats.get("gaussians")
-            count = ("every Gaussian kept" if kept is None or total is None
-                     or kept + stats.get("sketch_gaussians", 0) >= total
-                     else f"{kept + stats.get('sketch_gaussians', 0):,} of {total:,} Gaussians kept")
+            count = "every Gaussian kept" if stored >= n else f"{stored:,} of {n:,} Gaussians kept"
             print_(f"  {count}; " + precision_line(options)
                    + (", the sketch dropped for precision"
                    if stats.get("sketch", {}).get("dropped_for_precision") else ""))

@@ -424,7 +424,9 @@ class PatchConfig:
 class AllocationConfig:
     """How the rate-distortion search of the patch's precision measures its options
     (encoder/allocation.py; recorded in the file's metadata). It runs for a no-retrain
-    ``target_size`` that the preset's own file does not already fill (encoder/sizing.py)."""
+    ``target_size`` that the preset's own file does not already fill, and with no target for a
+    no-retrain preset that may prune, spending its own file's bytes (encoder/sizing.py,
+    DECISIONS D-33)."""
 
     #: Patch Gaussians the options are measured on (a uniform sample, seeded).
     sample: int = 16_384
@@ -626,7 +628,8 @@ class EncoderConfig:
     #: :data:`RETRAINED_MAX_SKETCH_SHARE` instead.
     max_sketch_share: float | None = 0.1
     #: The rate-distortion search of the patch's precision (codebook shape and size per
-    #: attribute) for a no-retrain ``target_size``: every Gaussian kept wherever some precision
+    #: attribute) for a no-retrain ``target_size``, or with no target the preset's own bytes
+    #: (``preset_config`` sets it, DECISIONS D-33): every Gaussian kept wherever some precision
     #: fits them all (None: off, the preset's precision and pruning).
     allocation: AllocationConfig | None = None
     #: Never drop a Gaussian (``--preset transparent``): a target size it cannot meet with every

@@ -32,7 +32,7 @@ from .prune_retrain import encode_pruned_patch, factor_trial
 from .refine import RefineResult, refine
 from .retraining.control import RunControl
 from .retraining.targets import PreparedTargets, prepare_targets, scene_weights
-from .sizing import Sizing, sizing_for
+from .sizing import Sizing, sized_encode, sizing_for
 from .sketch import SketchEncoder
 from .stages import EncodeRun, PatchChoice, ProgressFactory, SceneWriter, SketchOutcome, silent
 from .statistics import Closeup, EncodeStats, Quality, SketchStats, SkippedEvaluation
@@ -99,8 +99,7 @@ def encode(cloud: GaussianCloud, config: EncoderConfig | None = None,
     quality control (:mod:`.qualitycontrol`).
     """
     config = settled_config(cloud, config, dataset)
-    pruned = config.retrain is not None or config.target_size is not None or \
-        config.target_psnr is not None
+    pruned = sized_encode(config)
     if pruned:
         control = control or RunControl()
         control.check_checkpoint()

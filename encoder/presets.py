@@ -1,7 +1,10 @@
 """Named operating points of the encoder: ``--preset lowrate|balanced|highrate``.
 
 The presets differ in how finely the patch codebooks split each attribute (entry dimensions) and in
-how readily clusters become sketch (``tau_max``). Measured against renders of the original at
+how readily clusters become sketch (``tau_max``). Without retraining, ``lowrate``, ``balanced``
+and ``highrate`` are points of the rate-distortion curve: their shapes set the bytes, which the
+precision search spends (:func:`preset_config`, DECISIONS D-33); the table below is of the shapes
+themselves. Measured against renders of the original at
 8 held-out views of 400x400 (``spcodec eval --reference``), sizes in bytes, on 2026-11-22:
 
 ============  ====================  ====================  ====================  ===============
@@ -72,13 +75,19 @@ def retrains(name: str) -> bool:
 
 
 def preset_config(name: str, base: EncoderConfig | None = None,
-                  retrain: bool = False) -> EncoderConfig:
+                  retrain: bool = False, point: bool = True) -> EncoderConfig:
     """``base`` (default: a fresh EncoderConfig) with the preset's settings applied. With
     ``retrain``, also its retraining settings (on ``base.retrain`` or a default RetrainConfig) and
     the layout a retrained file is best with: :data:`RETRAINED_PATCH_LAYERS` geometric layers and
     the sketch within :data:`RETRAINED_MAX_SKETCH_SHARE` of the file. The CLI builds every encode
     here, so a library caller gets the file ``spcodec encode`` writes. A preset that never
-    retrains refuses ``retrain`` with ValueError."""
+    retrains refuses ``retrain`` with ValueError.
+
+    Without retraining, a preset that may prune is a *point* of the rate-distortion curve: its
+    codebook shapes only set the bytes (their file with every Gaussian), which the precision
+    search (:class:`AllocationConfig`, encoder/sizing.py ``PresetPoint``) spends, without a
+    sketch, as a size target would (DECISIONS D-33). ``point=False`` keeps the preset's own
+    shapes and sketch, as a tileset's nodes are encoded."""
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}: use one of {', '.join(PRESETS)}")
     base = base or EncoderConfig()
@@ -93,14 +102,16 @@ def preset_config(name: str, base: EncoderConfig | None = None,
         retrain_config = dataclasses.replace(base.retrain or RetrainConfig(), **values["retrain"])
         patch = with_layers(patch, RETRAINED_PATCH_LAYERS)
         sketch_share = RETRAINED_MAX_SKETCH_SHARE
+    on_curve = point and not retrain and retrains(name)
     return dataclasses.replace(
         base,
         patch=patch,
         refine=dataclasses.replace(base.refine, tau_max=values["tau_max"]),
-        use_sketch=base.use_sketch and values.get("use_sketch", True),
+        use_sketch=base.use_sketch and values.get("use_sketch", True) and not on_curve,
         retrain=retrain_config,
         max_sketch_share=sketch_share,
         keep_all=values["retrain"] is None,
+        allocation=(base.allocation or AllocationConfig()) if on_curve else base.allocation,
     )
 
 

@@ -187,7 +187,8 @@ def print_summary(stats: dict, stream: TextIO | None = None) -> None:
     rate = stats.get("rate")
     if rate:
         actual = stats["bytes"]
-        print_(f"  target {rate['target_bytes']:,} bytes: predicted {rate['predicted_bytes']:,}, "
+        aim = "the preset's own file" if rate.get("preset_point") else "target"
+        print_(f"  {aim} {rate['target_bytes']:,} bytes: predicted {rate['predicted_bytes']:,}, "
               f"actual {actual:,} ({100 * (actual / rate['target_bytes'] - 1):+.1f} %)"
               + (", trimmed to fit" if rate.get("trimmed") else ""))
         if rate.get("note"):

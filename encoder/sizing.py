@@ -1,12 +1,14 @@
 """How many patch Gaussians a file keeps: the one owner of rate and quality control.
 
 The patch stage and the retraining stage ask a :class:`Sizing` where they used to branch on
-``config.target_size`` and ``config.target_psnr`` themselves. There are three:
+``config.target_size`` and ``config.target_psnr`` themselves. There are four:
 
 * :class:`FactorSizing`: no target; keep ``1 / patch_downsample`` of the patch (all of it
   without retraining);
 * :class:`SizeTarget`: ``--target-size``, by :mod:`.ratecontrol` on real writes;
-* :class:`QualityTarget`: ``--target-psnr``, by :mod:`.qualitycontrol` on real renders.
+* :class:`QualityTarget`: ``--target-psnr``, by :mod:`.qualitycontrol` on real renders;
+* :class:`PresetPoint`: no target and no retraining: the preset's bytes, spent by the
+  precision search as :class:`SizeTarget` would.
 
 Each answers the same questions at the same points of an encode: how many to keep before any
 training (:meth:`Sizing.plan`), which rows of a quantized patch to keep (:meth:`Sizing.fit`,
@@ -180,7 +182,7 @@ class SizeTarget(Sizing):
     def __init__(self, config: EncoderConfig, original: GaussianCloud | None = None,
                  device: str = "auto") -> None:
         super().__init__(config, original, device)
-        self.target = int(config.target_size)
+        self.target = int(config.target_size or 0)
         self.predicted_count: int | None = None
         self.allocated: PatchConfig | None = None
         self.search: PrecisionSearch | None = None
@@ -437,6 +439,24 @@ class SizeTarget(Sizing):
         self.record["rate"]["trimmed"] = True
 
 
+class PresetPoint(SizeTarget):
+    """No target, without retraining, with ``config.allocation``: the preset as a point of the
+    rate-distortion curve (DECISIONS D-33). Its codebook shapes set the bytes, those of its own
+    file with every Gaussian, and the precision search spends them as a size target of that
+    file would, every Gaussian kept; where no precision is predicted to beat the preset's own
+    at those bytes, the preset's file is written."""
+
+    def plan(self, patch: GaussianCloud, weights: np.ndarray, writer: SceneWriter,
+             encoder: PatchEncoder, rows: np.ndarray | None = None) -> int:
+        self.target = pruned_file(writer, encoder, patch, weights, len(patch)).size
+        self.predicted_count = len(patch)
+        self.record["rate"] = {"target_bytes": self.target, "predicted_bytes": self.target,
+                               "unpruned_bytes": self.target, "predicted_count": len(patch),
+                               "preset_point": True}
+        self.allocate(patch, weights, writer, encoder, self.target, rows, len(patch))
+        return len(patch)
+
+
 class QualityTarget(Sizing):
     """``--target-psnr``: the smallest file whose close-up reaches ``config.target_psnr``.
 
@@ -595,7 +615,21 @@ def sizing_for(config: EncoderConfig, original: GaussianCloud, device: str) -> S
         return QualityTarget(config, original, device)
     if config.target_size is not None:
         return SizeTarget(config, original, device)
+    if _preset_point(config):
+        return PresetPoint(config, original, device)
     return FactorSizing(config)
+
+
+def sized_encode(config: EncoderConfig) -> bool:
+    """Whether an encode of ``config`` asks its sizing how many Gaussians to keep and how finely
+    (a target, retraining or a preset point); the others code every Gaussian as configured."""
+    return config.retrain is not None or config.target_size is not None or \
+        config.target_psnr is not None or _preset_point(config)
+
+
+def _preset_point(config: EncoderConfig) -> bool:
+    """Whether ``config`` is a preset's point of the curve (:class:`PresetPoint`)."""
+    return config.retrain is None and config.allocation is not None and not config.keep_all
 
 
 def _trial(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,

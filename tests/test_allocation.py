@@ -16,6 +16,7 @@ from spcodec.encoder.config import AllocationConfig, EncoderConfig, PatchConfig
 from spcodec.encoder.pipeline import encode
 from spcodec.encoder.presets import preset_config, sized
 from spcodec.encoder.ratecontrol import FIT_SLACK
+from spcodec.encoder.sizing import PresetPoint, SizeTarget, sized_encode, sizing_for
 from spcodec.errors import UsageError
 from spcodec.imaging.render import RenderSettings, render_image
 from spcodec.imaging.sensitivity import render_sensitivity
@@ -95,10 +96,14 @@ def test_the_curve_trades_bytes_for_distortion_and_a_budget_is_met(search):
     assert search.slope_at(curve[-1]) == 0.0 and search.slope_at(curve[0]) > 0.0
 
 
-def _config(preset: str, target: int | None = None) -> EncoderConfig:
-    config = preset_config(preset, EncoderConfig(patch=FAST))
+def _config(preset: str, target: int | None = None, point: bool = False) -> EncoderConfig:
+    """The preset's own shapes (``point``: the preset's point of the curve), fast codebooks and
+    a small search."""
+    config = preset_config(preset, EncoderConfig(patch=FAST), point=point)
     config = dataclasses.replace(config, patch=dataclasses.replace(
         config.patch, kmeans_iterations=10, kmeans_samples=20_000))
+    if point:
+        return dataclasses.replace(config, allocation=SMALL)
     if target is None:
         return config
     return dataclasses.replace(sized(config, target), allocation=SMALL)
@@ -158,6 +163,50 @@ def test_a_size_below_the_presets_keeps_the_file_that_renders_closest(scene):
         assert precision.get("options", "preset") == best["options"]
         if share < 0.5:  # nothing keeps every Gaussian there
             assert all(c["gaussians"] < len(scene) for c in candidates)
+
+
+@pytest.mark.slow  # whole encodes with the search: 8-14 s each
+def test_a_preset_without_retraining_spends_its_own_files_bytes_by_the_search(scene, cameras):
+    """A no-retrain preset is a point of the curve (DECISIONS D-33): it writes at most the bytes
+    of its codebook shapes' file with every Gaussian and no sketch, keeps every Gaussian, and
+    renders closer to the input than that file."""
+    shapes = encode(scene, dataclasses.replace(_config("balanced"), use_sketch=False))
+    point = encode(scene, _config("balanced", point=True))
+    rate = point.stats.rate
+    # the same Gaussians and codebooks; the metadata records the search's settings too
+    assert rate["preset_point"] and rate["target_bytes"] == pytest.approx(len(shapes.data),
+                                                                          abs=200), rate
+    assert len(point.data) <= rate["target_bytes"]
+    assert point.stats.sketch_gaussians == 0 and len(spcodec.decode(point.data)) == len(scene)
+    assert "options" in rate["precision"], rate  # the search beat the preset's own precision
+    settings_ = RenderSettings(background=(0.0, 0.0, 0.0))
+
+    def psnr(result) -> float:
+        decoded = spcodec.decode(result.data)
+        errors = [np.mean((render_image(decoded, c, settings_) - render_image(scene, c, settings_))
+                          ** 2) for c in cameras]
+        return float(np.mean([-10 * np.log10(max(e, 1e-12)) for e in errors]))
+    assert psnr(point) > psnr(shapes)
+
+
+def test_no_retrain_presets_that_may_prune_are_points_and_the_rest_keep_their_shapes():
+    """Which configurations :class:`PresetPoint` sizes: a no-retrain preset that may prune;
+    not transparent (it keeps its fixed precision), not a retrained preset, not ``point=False``
+    (a tileset's nodes), which keeps the preset's sketch."""
+    for name in ("lowrate", "balanced", "highrate"):
+        config = preset_config(name)
+        assert config.allocation is not None and not config.use_sketch
+        assert isinstance(sizing_for(config, None, "cpu"), PresetPoint)
+        assert sized_encode(config)
+        shapes = preset_config(name, point=False)
+        assert shapes.allocation is None and shapes.use_sketch and not sized_encode(shapes)
+        retrained = preset_config(name, retrain=True)
+        assert retrained.allocation is None and not isinstance(
+            sizing_for(retrained, None, "cpu"), PresetPoint)
+    transparent = preset_config("transparent")
+    assert transparent.allocation is None and not sized_encode(transparent)
+    assert isinstance(sizing_for(sized(preset_config("balanced"), 10_000), None, "cpu"),
+                      SizeTarget)
 
 
 @pytest.mark.slow  # whole encodes with the search: 8-14 s each

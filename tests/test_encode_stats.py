@@ -86,7 +86,9 @@ def test_the_stats_file_is_the_document_with_the_command_lines_additions(tmp_pat
     assert main(["encode", str(ply), "-o", str(out), "--no-retrain", "--quiet",
                  "--stats", str(stats)]) == 0
     doc = json.loads(stats.read_text())
-    assert list(doc) == HEAD + ["sketch_error", "input_bytes", "output"]
+    # a no-retrain preset is a point of the curve (DECISIONS D-33): its sizing's record is "rate"
+    assert list(doc) == HEAD + ["rate", "sketch_error", "input_bytes", "output"]
+    assert doc["rate"]["preset_point"] and doc["bytes"] <= doc["rate"]["target_bytes"]
     assert doc["input_bytes"] == ply.stat().st_size and doc["output"] == str(out)
     _check_counts(doc, out.read_bytes())
 

@@ -114,11 +114,13 @@ def encoder_config(job: NodeJob):
     also cost more to start than it saves. ``n_jobs`` changes no byte of the file, so it is no
     part of the digest (:meth:`EncoderConfig.to_json` leaves it out). ``job.sketch`` can only
     take the preset's sketch away, never add one to a preset that has none; ``use_sketch`` is in
-    the digest, so switching it re-encodes every node.
+    the digest, so switching it re-encodes every node. Nodes keep the preset's own codebook
+    shapes (``point=False``): a single file's precision search (DECISIONS D-33) costs 8-28 CPU s
+    of fixed work per encode, which every node would pay; not yet measured on nodes.
     """
     from spcodec.encoder import preset_config
 
-    config = preset_config(job.preset)
+    config = preset_config(job.preset, point=False)
     return dataclasses.replace(config, seed=job.seed, n_jobs=1,
                                use_sketch=config.use_sketch and job.sketch)
 

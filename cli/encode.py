@@ -253,7 +253,8 @@ def encode_config(args: argparse.Namespace):
         raise UsageError(str(exc)) from None
     config = preset_config(args.preset, EncoderConfig(
         seed=args.seed, n_jobs=args.jobs, use_sketch=not args.no_sketch, codec=args.codec,
-        gzip=args.gzip), retrain=retrain)
+        gzip=args.gzip), retrain=retrain,
+        point=args.target_size is None and args.target_psnr is None)
     if args.target_size is not None:
         config = sized(config, parse_size(args.target_size))
     if args.target_psnr is not None:

@@ -87,7 +87,9 @@ def preset_config(name: str, base: EncoderConfig | None = None,
     codebook shapes only set the bytes (their file with every Gaussian), which the precision
     search (:class:`AllocationConfig`, encoder/sizing.py ``PresetPoint``) spends, without a
     sketch, as a size target would (DECISIONS D-33). ``point=False`` keeps the preset's own
-    shapes and sketch, as a tileset's nodes are encoded."""
+    shapes and sketch: a tileset's nodes, and the start of :func:`sized` and :func:`aimed`,
+    whose targets choose the point themselves (a quality target keeps the preset's sketch: on
+    kacytran without it its file was 8 % larger, docs/LOG.md 26.1)."""
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}: use one of {', '.join(PRESETS)}")
     base = base or EncoderConfig()

@@ -232,7 +232,7 @@ def test_a_precision_short_at_the_evaluations_resolution_steps_up_the_curve(smal
 
     judge = type("Judge", (), {"__call__": lambda self, point: small[point],
                                "verify": lambda self, point, predicted=None: full[point]})()
-    config = aimed(preset_config("balanced", EncoderConfig()), target)
+    config = aimed(preset_config("balanced", EncoderConfig(), point=False), target)
     sizing = sizing_module.QualityTarget.__new__(sizing_module.QualityTarget)
     sizing.config, sizing.target, sizing.judge, sizing.record = config, target, judge, {}
     sizing.precision_search = lambda *args: types.SimpleNamespace(

@@ -73,7 +73,9 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="bits of precision of the patch positions over each layer's box: "
                    f"%(type)s (default: {config.RETRAINED_POSITION_BITS} of the scene's extent "
                    f"when retraining, {config.DEFAULT_POSITION_BITS} without, "
-                   f"{PRESETS['transparent']['position_bits']} for --preset transparent)")
+                   f"{PRESETS['transparent']['position_bits']} for --preset transparent; "
+                   "without retraining the other presets and the targets choose them by rate "
+                   "and distortion unless given)")
     p.add_argument("--tau-max", type=Bounded(float, 0, exclusive=True), default=None,
                    metavar="TAU", help="polynomial-model error threshold of sketch clusters "
                    "(unitless): %(type)s (default: set by --preset)")
@@ -267,6 +269,8 @@ def encode_config(args: argparse.Namespace):
         config.patch = with_layers(config.patch, args.patch_layers)
     if args.position_bits is not None:
         config.patch = dataclasses.replace(config.patch, position_bits=args.position_bits)
+        if config.allocation is not None:  # the precision search keeps the grid asked for
+            config.allocation = dataclasses.replace(config.allocation, position_bits=())
     if args.tau_max is not None:
         config.refine = dataclasses.replace(config.refine, tau_max=args.tau_max)
     if retrain:

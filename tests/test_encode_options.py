@@ -116,3 +116,14 @@ def test_unknown_presets_and_options_are_named():
         check_options("balanced", iteration=5)
     assert check_options("balanced") is True and check_options("transparent") is False
     assert check_options("highrate", no_retrain=False, nested=None) is True
+
+
+@pytest.mark.parametrize("extra", [[], ["--target-size", "150k"], ["--target-psnr", "30"]])
+def test_position_bits_given_are_kept_by_the_precision_search(extra):
+    """Without retraining a preset's point and the targets choose the positions' grid by rate
+    and distortion; a grid given with --position-bits is kept instead."""
+    argv = ["encode", "in.ply", "-o", "out.spc", "--no-retrain", *extra]
+    chosen = encode_config(build_parser().parse_args(argv))
+    assert chosen.allocation is not None and chosen.allocation.position_bits
+    given_ = encode_config(build_parser().parse_args(argv + ["--position-bits", "13"]))
+    assert given_.allocation.position_bits == () and given_.patch.position_bits == 13

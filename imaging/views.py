@@ -147,6 +147,8 @@ def robust_bounds(cloud: GaussianCloud, percentile: float = 2.0, min_opacity: fl
         raise UsageError("the cloud has no finite Gaussian centre")
     core_lo, core_hi = np.percentile(points, [percentile, 100.0 - percentile], axis=0)
     inside = points[_connected_to_box(points, core_lo, core_hi, reach)]
+    if len(inside) == 0:  # a few points straddle the box their own percentiles cut
+        inside = points
     lo, hi = inside.min(axis=0), inside.max(axis=0)
     if len(inside) > _MAX_ROBUST_POINTS:  # an even stride keeps it deterministic and spread out
         inside = inside[np.linspace(0, len(inside) - 1, _MAX_ROBUST_POINTS).astype(np.int64)]

@@ -112,6 +112,22 @@ def test_thin_parts_are_framed_whole_and_floaters_are_not() -> None:
     assert robust_bounds(body_only).lo[1] > -0.55  # no neck, nothing to take in
 
 
+@pytest.mark.parametrize("count", [2, 3, 5])
+def test_a_few_gaussians_are_framed_whole(count: int) -> None:
+    """A handful of centres straddle the box their own percentiles cut, which nothing is
+    connected to; the box is then theirs, and views are placed around it."""
+    points = (np.random.default_rng(count).normal(size=(count, 3)) * 2.0).astype(np.float32)
+    bounds = robust_bounds(_cloud(points, 0.1))
+    assert len(bounds.points) >= 1 and np.all(bounds.hi > bounds.lo)
+    assert np.all(bounds.lo <= bounds.points.min(axis=0)) and \
+        np.all(bounds.hi >= bounds.points.max(axis=0))
+    if count == 2:  # neither is a floater of the other
+        assert len(bounds.points) == 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ViewSamplingWarning)
+        assert len(sample_views(_cloud(points, 0.1), 2, resolution=RES)) == 2
+
+
 def test_views_scale_with_the_scene() -> None:
     small = sample_views(_object_scene(1e-3), 6, RES, "eval")
     large = sample_views(_object_scene(1e3), 6, RES, "eval")

@@ -387,9 +387,31 @@ def test_a_preset_without_a_sketch_never_gets_one():
     assert encoder_config(job("transparent", True)).use_sketch is False
 
 
+def test_precision_search_makes_a_node_its_presets_point_and_redoes_it(small_ply, tmp_path):
+    """``precision_search=True`` encodes a node as a single file's preset is (DECISIONS D-33):
+    its preset's bytes spent by the precision search, recorded in the node's settings; the
+    setting is in the digest, so switching it re-encodes the node. Off by default."""
+    from spcodec.tiling.build import NodeJob, encoder_config
+
+    assert TilingConfig().precision_search is False
+    job = NodeJob("n", (), "digest", ".", "balanced", 0, 4, True, True)
+    assert encoder_config(job).allocation is not None and encoder_config(job).use_sketch is False
+    whole = dict(leaf_size=2048, branching=2, workers=0)
+    plain = build_tileset(small_ply, tmp_path, TilingConfig(**whole))
+    searched = build_tileset(small_ply, tmp_path, TilingConfig(**whole, precision_search=True))
+    assert searched.nodes == 1 and searched.encoded_nodes == 1
+    assert searched.bytes <= plain.bytes
+    [node] = node_files(tmp_path)
+    from spcodec.decoder import inspect
+
+    settings = inspect(node).metadata["settings"]
+    assert settings["allocation"] is not None and settings["use_sketch"] is False
+
+
 @pytest.mark.parametrize("module", ["spcodec", "tiling"])
 @pytest.mark.parametrize("flag, expected", [([], False), (["--sketch"], True), (["--no-sketch"], False)])
 def test_both_clis_pass_the_sketch_setting(module, flag, expected, scene_ply, tmp_path, monkeypatch):
+    """And --precision-search, off unless given."""
     import spcodec.tiling.__main__ as tiling_main
     from spcodec import tiling
     from spcodec.cli import main as spcodec
@@ -406,6 +428,10 @@ def test_both_clis_pass_the_sketch_setting(module, flag, expected, scene_ply, tm
     args = [str(scene_ply), "-o", str(tmp_path / "out"), "--workers", "0", *flag]
     assert (spcodec(["tile", *args]) if module == "spcodec" else tiling_main.main(args)) == 2
     assert [config.sketch for config in seen] == [expected]
+    assert [config.precision_search for config in seen] == [False]
+    assert (spcodec(["tile", *args, "--precision-search"]) if module == "spcodec"
+            else tiling_main.main([*args, "--precision-search"])) == 2
+    assert seen[-1].precision_search is True
 
 
 @pytest.mark.slow  # starts a Dask cluster: 20-80 s on a busy 2-core machine

@@ -54,6 +54,9 @@ class NodeJob:
     branching: int
     sketch: bool
     """Whether the encode may build a sketch (:attr:`.config.TilingConfig.sketch`)."""
+    precision_search: bool = False
+    """Whether the node is its preset's point of the curve
+    (:attr:`.config.TilingConfig.precision_search`)."""
 
 
 def build_node(job: NodeJob, children: list[dict]) -> dict:
@@ -115,12 +118,12 @@ def encoder_config(job: NodeJob):
     part of the digest (:meth:`EncoderConfig.to_json` leaves it out). ``job.sketch`` can only
     take the preset's sketch away, never add one to a preset that has none; ``use_sketch`` is in
     the digest, so switching it re-encodes every node. Nodes keep the preset's own codebook
-    shapes (``point=False``): a single file's precision search (DECISIONS D-33) costs 8-28 CPU s
-    of fixed work per encode, which every node would pay; not yet measured on nodes.
+    shapes (``point=False``) unless ``job.precision_search``: a single file's precision search
+    (DECISIONS D-33) is a fixed cost that every node pays (docs/LOG.md 26.3).
     """
     from spcodec.encoder import preset_config
 
-    config = preset_config(job.preset, point=False)
+    config = preset_config(job.preset, point=job.precision_search)
     return dataclasses.replace(config, seed=job.seed, n_jobs=1,
                                use_sketch=config.use_sketch and job.sketch)
 

@@ -31,6 +31,12 @@ class TilingConfig:
     nodes, leaves and merged inner nodes alike, the sketch's cluster search cost a third of a
     node's CPU where it found no cluster and, where it did, its files were worse at equal bytes
     (docs/LOG.md, issue 39). It can only take the preset's sketch away, never add one."""
+    precision_search: bool = False
+    """Whether each node is its preset's point of the rate-distortion curve, as a single file is
+    (``--precision-search``, DECISIONS D-33): the preset's bytes spent by the precision search,
+    without a sketch. Off by default: on guitar in leaves of 8,192 it gained 6.8 / 7.7 dB at
+    equal bytes but took 13.6x the tileset's time, the search's fixed cost paid per node
+    (docs/LOG.md 26.3)."""
     workers: int = 2
     cluster: str | None = None
     seed: int = 0

@@ -97,7 +97,8 @@ def jobs_of(parts: Partition, out: Path, config: TilingConfig) -> list[NodeJob]:
     """One job per node, every node after its children."""
     folder = str(out.resolve())  # workers may run elsewhere (another working folder)
     return [NodeJob(n.id, tuple(n.children), n.leaf_digest, folder, config.preset, config.seed,
-                    config.branching, config.sketch) for n in parts.bottom_up()]
+                    config.branching, config.sketch, config.precision_search)
+            for n in parts.bottom_up()]
 
 
 def remove_stale_nodes(out: Path, parts: Partition) -> None:

@@ -53,8 +53,10 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, help="the .spc file to write")
     p.add_argument("--preset", choices=list(PRESETS), default="balanced",
                    help="rate/quality operating point: codebooks, sketch threshold and patch "
-                   "downsample; transparent keeps every Gaussian, never retrains, and aims to "
-                   "look like the input in a viewer (default: %(default)s)")
+                   "downsample; with --no-retrain the codebooks only set the bytes, which the "
+                   "precision search spends, without a sketch; transparent keeps every Gaussian, "
+                   "never retrains, and aims to look like the input in a viewer (default: "
+                   "%(default)s)")
     p.add_argument("--codec", choices=["zlib", "zstd"], default="zlib",
                    help="section codec; zlib: every decoder reads it and the Python one "
                    "fastest, zstd: optional, each frame checked against spec 1.1.1's rules "
@@ -124,8 +126,8 @@ def configure(p: argparse.ArgumentParser) -> None:
 
     train = p.add_argument_group("retraining")
     train.add_argument("--no-retrain", action="store_true",
-                       help="skip retraining: code the patch as it is; seconds instead of "
-                       "minutes, larger files (default: off)")
+                       help="skip retraining: code the patch without training; seconds "
+                       "instead of minutes, larger files (default: off)")
     train.add_argument("--dataset", metavar="DIR", help="retrain against this dataset's training "
                        "images (COLMAP, transforms.json or LLFF; its test split is held out) "
                        "(default: renders of the input at sampled views, i.e. distillation)")

@@ -28,9 +28,11 @@ from .render import GaussianParams, RenderSettings, render
 
 @dataclass
 class Sensitivity:
-    """diag(J^T J) per pixel and channel, for each parameter of each Gaussian (float64 arrays in
-    the cloud's own parametrization: means (n, 3), log-scales (n, 3), quaternions (n, 4),
-    opacity logits (n,), SH (n, K, 3) with the DC first)."""
+    """diag(J^T J) per pixel and channel, for each parameter of each Gaussian (arrays in the
+    cloud's own parametrization: means (n, 3), log-scales (n, 3), quaternions (n, 4), opacity
+    logits (n,), SH (n, K, 3) with the DC first). Kept in float32, the renderer's precision:
+    :meth:`mse` computes in float64, so nothing is lost, and a search over a scene of SH 3 holds
+    half of 944 bytes a Gaussian (docs/LOG.md 26.4)."""
 
     means: np.ndarray
     scales: np.ndarray
@@ -90,5 +92,5 @@ def render_sensitivity(cloud: GaussianCloud, cameras: Sequence[Camera],
                     acc += grad.detach() ** 2
         pixels += camera.width * camera.height * 3
     scale = 1.0 / max(pixels * samples, 1)
-    arrays = [(t * scale).cpu().numpy().astype(np.float64) for t in total]
+    arrays = [(t * scale).cpu().numpy().astype(np.float32) for t in total]
     return Sensitivity(*arrays)

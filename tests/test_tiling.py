@@ -391,6 +391,7 @@ def test_precision_search_makes_a_node_its_presets_point_and_redoes_it(small_ply
     """``precision_search=True`` encodes a node as a single file's preset is (DECISIONS D-33):
     its preset's bytes spent by the precision search, recorded in the node's settings; the
     setting is in the digest, so switching it re-encodes the node. Off by default."""
+    from spcodec.decoder import inspect
     from spcodec.tiling.build import NodeJob, encoder_config
 
     assert TilingConfig().precision_search is False
@@ -402,8 +403,6 @@ def test_precision_search_makes_a_node_its_presets_point_and_redoes_it(small_ply
     assert searched.nodes == 1 and searched.encoded_nodes == 1
     assert searched.bytes <= plain.bytes
     [node] = node_files(tmp_path)
-    from spcodec.decoder import inspect
-
     settings = inspect(node).metadata["settings"]
     assert settings["allocation"] is not None and settings["use_sketch"] is False
 

@@ -274,6 +274,10 @@ def encode_config(args: argparse.Namespace):
         if config.allocation is not None:  # the precision search keeps the grid asked for
             config.allocation = dataclasses.replace(config.allocation, position_bits=())
     if args.tau_max is not None:
+        if not config.use_sketch:
+            raise UsageError("--tau-max sets the sketch's clusters, which this encode does not "
+                             "build (--no-sketch, or a no-retrain preset without a target: "
+                             "DECISIONS D-33): drop --tau-max")
         config.refine = dataclasses.replace(config.refine, tau_max=args.tau_max)
     if retrain:
         changes = {}

@@ -127,3 +127,18 @@ def test_position_bits_given_are_kept_by_the_precision_search(extra):
     assert chosen.allocation is not None and chosen.allocation.position_bits
     given_ = encode_config(build_parser().parse_args(argv + ["--position-bits", "13"]))
     assert given_.allocation.position_bits == () and given_.patch.position_bits == 13
+
+
+@pytest.mark.parametrize("extra, refused", [
+    (["--no-retrain"], True), (["--no-sketch"], True), (["--no-retrain", "--preset", "transparent"], True),
+    ([], False), (["--no-retrain", "--target-psnr", "30"], False)])
+def test_tau_max_is_refused_where_no_sketch_is_built(extra, refused):
+    """--tau-max tunes the sketch; an encode that builds none (a no-retrain preset's point,
+    --no-sketch, transparent) says so in one line instead of ignoring it."""
+    args = build_parser().parse_args(["encode", "in.ply", "-o", "out.spc", *extra,
+                                      "--tau-max", "0.2"])
+    if refused:
+        with pytest.raises(UsageError, match="--tau-max sets the sketch's clusters"):
+            encode_config(args)
+    else:
+        assert encode_config(args).refine.tau_max == 0.2

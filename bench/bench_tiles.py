@@ -78,7 +78,9 @@ def run_one(args: argparse.Namespace) -> None:
         from spcodec.encoder import encode, preset_config
 
         cloud = load_scene(args.scene)
-        config = preset_config("balanced")
+        # as a user runs it (the preset's point, D-33), or its own codebooks with or without
+        # their sketch (--sketch / --no-sketch), the file the tileset's nodes are made as
+        config = preset_config("balanced", point=args.sketch is None)
         if args.sketch is not None:
             config = dataclasses.replace(config, use_sketch=args.sketch)
         result = encode(cloud, config)
@@ -288,7 +290,8 @@ def main() -> None:
     r.add_argument("--branching", type=int, default=4)
     r.add_argument("--sketch", action=argparse.BooleanOptionalAction,
                    help="the encodes build a sketch (default: the mode's own: the tiling's for "
-                   "tiled, the preset's for single)")
+                   "tiled, the preset's point without one for single; given, single keeps the "
+                   "preset's own codebooks)")
     g = sub.add_parser("merges")
     g.add_argument("tileset")
     g.add_argument("--nodes", type=int, default=4)

@@ -611,25 +611,26 @@ def _size_line(measured: list[tuple[float, int]], other: float) -> tuple[float, 
 
 def sizing_for(config: EncoderConfig, original: GaussianCloud, device: str) -> Sizing:
     """The sizing ``config`` asks for (the pipeline refuses both targets at once)."""
-    if config.target_psnr is not None:
-        return QualityTarget(config, original, device)
-    if config.target_size is not None:
-        return SizeTarget(config, original, device)
-    if _preset_point(config):
-        return PresetPoint(config, original, device)
-    return FactorSizing(config)
+    kind = _sizing_kind(config)
+    return FactorSizing(config) if kind is FactorSizing else kind(config, original, device)
 
 
 def sized_encode(config: EncoderConfig) -> bool:
     """Whether an encode of ``config`` asks its sizing how many Gaussians to keep and how finely
-    (a target, retraining or a preset point); the others code every Gaussian as configured."""
-    return config.retrain is not None or config.target_size is not None or \
-        config.target_psnr is not None or _preset_point(config)
+    (retraining, a target or a preset point); the others code every Gaussian as configured."""
+    return config.retrain is not None or _sizing_kind(config) is not FactorSizing
 
 
-def _preset_point(config: EncoderConfig) -> bool:
-    """Whether ``config`` is a preset's point of the curve (:class:`PresetPoint`)."""
-    return config.retrain is None and config.allocation is not None and not config.keep_all
+def _sizing_kind(config: EncoderConfig) -> type[Sizing]:
+    """Which :class:`Sizing` ``config`` asks for: a target, else a no-retrain preset's point
+    of the curve (``config.allocation`` set by ``preset_config``), else the factor."""
+    if config.target_psnr is not None:
+        return QualityTarget
+    if config.target_size is not None:
+        return SizeTarget
+    if config.retrain is None and config.allocation is not None and not config.keep_all:
+        return PresetPoint
+    return FactorSizing
 
 
 def _trial(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,

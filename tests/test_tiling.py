@@ -392,6 +392,7 @@ def test_precision_search_makes_a_node_its_presets_point_and_redoes_it(small_ply
     its preset's bytes spent by the precision search, recorded in the node's settings; the
     setting is in the digest, so switching it re-encodes the node. Off by default."""
     from spcodec.decoder import inspect
+    from spcodec.errors import UsageError
     from spcodec.tiling.build import NodeJob, encoder_config
 
     assert TilingConfig().precision_search is False
@@ -405,6 +406,11 @@ def test_precision_search_makes_a_node_its_presets_point_and_redoes_it(small_ply
     [node] = node_files(tmp_path)
     settings = inspect(node).metadata["settings"]
     assert settings["allocation"] is not None and settings["use_sketch"] is False
+    with pytest.raises(UsageError, match="--precision-search makes every node its preset's "
+                                         "point, which builds no sketch"):
+        build_tileset(small_ply, tmp_path / "both", TilingConfig(**whole, sketch=True,
+                                                                 precision_search=True))
+    assert not (tmp_path / "both").exists()
 
 
 @pytest.mark.parametrize("module", ["spcodec", "tiling"])

@@ -68,3 +68,6 @@ class TilingConfig:
             raise UsageError(f"chunk rows must be positive, got {self.chunk_rows}")
         if self.retries < 0:
             raise UsageError(f"retries must be 0 or more, got {self.retries}")
+        if self.sketch and self.precision_search:
+            raise UsageError("--precision-search makes every node its preset's point, which "
+                             "builds no sketch (DECISIONS D-33): drop --sketch or it")

@@ -35,7 +35,7 @@ from spcodec.writer import PatchLayer
 from . import compressions
 from .codebook_fits import digest
 from .recent import Recent
-from .refine import default_jobs
+from .threads import default_jobs
 
 TOC_ENTRY_BYTES = 40
 """What one more section costs in the table of contents (spec 3.3)."""

@@ -11,7 +11,6 @@ shows the Gaussians that matter most.
 from __future__ import annotations
 
 import zlib
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,7 +31,7 @@ from .draco import encode_as_set, encode_ordered, grid_for
 from .ecvq import ecvq_refine, with_zero_entry
 from .kmeans import exhaustive_codebook, nearest, sampled_codebook
 from .morton import morton_codes
-from .refine import default_jobs
+from .threads import default_jobs, map_tasks
 
 
 def coded_attributes(cloud: GaussianCloud) -> dict[PatchAttribute, np.ndarray]:
@@ -468,31 +467,15 @@ class PatchEncoder:
         return {cb.attribute: idx for cb, idx in zip(codebooks, indices)}
 
     def _map(self, fn, attributes: list) -> list:
-        """``fn`` over per-attribute tasks on :attr:`jobs` threads, widest attributes first.
-
-        Each task runs its numpy/scikit-learn work on one BLAS/OpenMP thread: whole attributes
-        keep two cores busy, where the libraries' own fine-grained threads stalled whenever
-        another process ran (fourth_st's codebooks: 5.2-6.4 s on one thread, 7.4-9.6 s on two).
-        Results do not depend on the number of threads.
-        """
-        from threadpoolctl import threadpool_limits
-
+        """``fn`` over per-attribute tasks on :attr:`jobs` threads, widest attributes first, each
+        on one BLAS/OpenMP thread (:func:`.threads.map_tasks`): whole attributes keep two cores
+        busy, where the libraries' own fine-grained threads stalled whenever another process ran
+        (fourth_st's codebooks: 5.2-6.4 s on one thread, 7.4-9.6 s on two). Results do not
+        depend on the number of threads."""
         def width(item) -> int:
-            attr = item.attribute if isinstance(item, Codebook) else item
-            return attr.width
+            return (item.attribute if isinstance(item, Codebook) else item).width
 
-        order = sorted(range(len(attributes)), key=lambda i: -width(attributes[i]))
-        jobs = min(self.jobs or default_jobs(), len(attributes))
-        with threadpool_limits(limits=1):
-            if jobs <= 1:
-                results = [fn(attributes[i]) for i in order]
-            else:
-                with ThreadPoolExecutor(jobs) as pool:
-                    results = list(pool.map(lambda i: fn(attributes[i]), order))
-        out = [None] * len(attributes)
-        for i, result in zip(order, results):
-            out[i] = result
-        return out
+        return map_tasks(fn, attributes, self.jobs, cost=width)
 
     def layer(self, cloud: GaussianCloud, quantized: Quantized, importance: np.ndarray
               ) -> PatchEncoding:

@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import math
 import multiprocessing
-import os
 import time
 from collections import deque
 from concurrent.futures import ProcessPoolExecutor
@@ -54,6 +53,7 @@ from .polyfit import (
     fit_cluster_detailed,
     refit_or_keep,
 )
+from .threads import default_jobs
 
 __all__ = ["RefineConfig", "RefineResult", "RefineStats", "refine", "iqr_filter", "iqr_outliers"]
 
@@ -341,14 +341,6 @@ def iqr_filter(positions: np.ndarray, targets: dict[SketchAttribute, np.ndarray]
 
 
 # -------------------------------------------------------------------------------------- driver
-def default_jobs() -> int:
-    """Cores this process may use."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - non-Linux
-        return max(1, os.cpu_count() or 1)
-
-
 def _roots(labels: np.ndarray) -> list[tuple[tuple[int, ...], np.ndarray]]:
     """One node per non-negative label, indices ascending, keyed by label."""
     clustered = np.flatnonzero(labels >= 0)

@@ -40,6 +40,7 @@ from .kmeans import codebook_ladder
 from .morton import morton_codes
 from .patch import coded_attributes, encode_positions, final_codebook, input_grid, train_codebook
 from .recent import Recent
+from .threads import map_tasks
 
 LADDERS: dict[str, tuple[int, ...]] = {
     "SCALE": (3, 1), "ROTATION": (4, 2, 1), "OPACITY": (1,), "COLOR_DC": (3, 1),
@@ -151,10 +152,12 @@ class PrecisionSearch:
     @classmethod
     def measure(cls, patch: GaussianCloud, sensitivity: dict[str, Sensitivity],
                 weights: np.ndarray | None, base: PatchConfig, seed: int,
-                config: AllocationConfig | None = None) -> "PrecisionSearch":
+                config: AllocationConfig | None = None, jobs: int | None = None
+                ) -> "PrecisionSearch":
         """Measure every option on a sample of ``patch``. ``sensitivity`` maps each framing
         ("orbit", "close") to the patch's :class:`Sensitivity`; ``weights`` weight k-means as the
-        patch encoder does."""
+        patch encoder does. Attributes are measured on ``jobs`` threads
+        (:func:`.threads.map_tasks`); the options do not depend on how many."""
         config = config or AllocationConfig()
         n = len(patch)
         rng = np.random.default_rng([seed, 0xA110C])
@@ -167,20 +170,27 @@ class PrecisionSearch:
         sample_weights = None if weights is None else np.asarray(weights)[rows]
         if config.ecvq_strengths:  # ECVQ can then drop an SH band per Gaussian
             base = dataclasses.replace(base, sh_zero_entry=True)
-        options: dict[str, list[Option]] = {}
         whole = coded_attributes(patch) if len(rows) < n else None
-        for index, (attr, coded) in enumerate(coded_attributes(sample).items()):
-            options[attr.name] = []
+        coded = list(enumerate(coded_attributes(sample).items()))
+
+        def attribute_options(task: tuple[int, tuple[PatchAttribute, np.ndarray]]
+                              ) -> list[Option]:
+            index, (attr, values) = task
+            out: list[Option] = []
             for dim in LADDERS[attr.name]:
-                sizes = entry_choices(coded, None if whole is None else whole[attr], dim,
+                sizes = entry_choices(values, None if whole is None else whole[attr], dim,
                                       config.entry_counts)
-                books = _codebooks(coded, dim, sizes, sample_weights, base, seed + 7919 * index)
+                books = _codebooks(values, dim, sizes, sample_weights, base, seed + 7919 * index)
                 exact = sizes[0] if sizes[0] < max(config.entry_counts) else 0
                 for entries in sizes:
                     asked = entries if entries == exact else len(books[entries])
-                    options[attr.name] += _measure_options(
-                        sample, attr, coded, books[entries], asked, sample_weights, base,
-                        framing, weight, scale, config.ecvq_strengths)
+                    out += _measure_options(sample, attr, values, books[entries], asked,
+                                            sample_weights, base, framing, weight, scale,
+                                            config.ecvq_strengths)
+            return out
+
+        measured = map_tasks(attribute_options, coded, jobs, cost=lambda t: t[1][0].width)
+        options = {attr.name: opts for (_, (attr, _)), opts in zip(coded, measured)}
         return cls(options, n, config)
 
     def rescaled(self, count: int) -> "PrecisionSearch":

@@ -155,7 +155,7 @@ class Sizing:
         framings = self.sensitivity if scene is patch else \
             {name: s.subset(rows) for name, s in self.sensitivity.items()}
         search = PrecisionSearch.measure(patch, framings, encoder.kmeans_weights(weights),
-                                         encoder.config, self.config.seed, config)
+                                         encoder.config, self.config.seed, config, encoder.jobs)
         if not config.position_bits or encoder.config.position_mode not in ("draco", "quant16"):
             return search
         placed = rows if scene is not patch else np.arange(len(patch))

@@ -70,6 +70,13 @@ def search(scene, cameras):
     return PrecisionSearch.measure(scene, framings, None, FAST, seed=0, config=SMALL)
 
 
+def test_the_options_do_not_depend_on_how_many_threads_measure_them(scene, cameras, search):
+    settings = RenderSettings(background=(0.0, 0.0, 0.0))
+    framings = {"orbit": render_sensitivity(scene, cameras, settings)}
+    one = PrecisionSearch.measure(scene, framings, None, FAST, seed=0, config=SMALL, jobs=1)
+    assert one.options == search.options  # the fixture's measure ran on every core
+
+
 def test_finer_codebooks_predict_less_distortion_for_more_bytes(search):
     for name, options in search.options.items():
         whole = {(o.entry_dim, o.entries): o for o in options}

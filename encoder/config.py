@@ -425,8 +425,8 @@ class AllocationConfig:
     """How the rate-distortion search of the patch's precision measures its options
     (encoder/allocation.py; recorded in the file's metadata). It runs for a no-retrain
     ``target_size`` that the preset's own file does not already fill, and with no target for a
-    no-retrain preset that may prune, spending its own file's bytes (encoder/sizing.py,
-    DECISIONS D-33)."""
+    no-retrain preset that may prune, spending the bytes it predicts for the preset's codebook
+    shapes (encoder/sizing.py, DECISIONS D-33, D-34)."""
 
     #: Patch Gaussians the options are measured on (a uniform sample, seeded).
     sample: int = 16_384

@@ -84,9 +84,9 @@ def preset_config(name: str, base: EncoderConfig | None = None,
     retrains refuses ``retrain`` with ValueError.
 
     Without retraining, a preset that may prune is a *point* of the rate-distortion curve: its
-    codebook shapes only set the bytes (their file with every Gaussian), which the precision
-    search (:class:`AllocationConfig`, encoder/sizing.py ``PresetPoint``) spends, without a
-    sketch, as a size target would (DECISIONS D-33). ``point=False`` keeps the preset's own
+    codebook shapes only set the bytes (the search's prediction of them with every Gaussian),
+    which the precision search (:class:`AllocationConfig`, encoder/sizing.py ``PresetPoint``)
+    spends, without a sketch (DECISIONS D-33, D-34). ``point=False`` keeps the preset's own
     shapes and sketch: a tileset's nodes, and the start of :func:`sized` and :func:`aimed`,
     whose targets choose the point themselves (a quality target keeps the preset's sketch: on
     kacytran without it its file was 8 % larger, docs/LOG.md 26.1)."""

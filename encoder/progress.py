@@ -187,10 +187,16 @@ def print_summary(stats: dict, stream: TextIO | None = None) -> None:
     rate = stats.get("rate")
     if rate:
         actual = stats["bytes"]
-        aim = "the preset's own file" if rate.get("preset_point") else "target"
-        print_(f"  {aim} {rate['target_bytes']:,} bytes: predicted {rate['predicted_bytes']:,}, "
-              f"actual {actual:,} ({100 * (actual / rate['target_bytes'] - 1):+.1f} %)"
-              + (", trimmed to fit" if rate.get("trimmed") else ""))
+        if rate.get("preset_point"):  # no target: the bytes the search predicts for the shapes
+            spent = rate["precision"]["preset_bytes"]
+            print_(f"  the preset's point: its codebooks' {spent:,} bytes (as the search "
+                   "predicts them) spent by the search" if "options" in rate["precision"] else
+                   "  the preset's point: nothing predicted to beat its own codebooks")
+        else:
+            print_(f"  target {rate['target_bytes']:,} bytes: predicted "
+                   f"{rate['predicted_bytes']:,}, actual {actual:,} "
+                   f"({100 * (actual / rate['target_bytes'] - 1):+.1f} %)"
+                   + (", trimmed to fit" if rate.get("trimmed") else ""))
         if rate.get("note"):
             print_(f"  note: {rate['note']}")
         options = rate.get("precision", {}).get("options")

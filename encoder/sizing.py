@@ -7,8 +7,8 @@ The patch stage and the retraining stage ask a :class:`Sizing` where they used t
   without retraining);
 * :class:`SizeTarget`: ``--target-size``, by :mod:`.ratecontrol` on real writes;
 * :class:`QualityTarget`: ``--target-psnr``, by :mod:`.qualitycontrol` on real renders;
-* :class:`PresetPoint`: no target and no retraining: the preset's bytes, spent by the
-  precision search as :class:`SizeTarget` would.
+* :class:`PresetPoint`: no target and no retraining: the bytes the precision search predicts
+  for the preset's codebooks, spent by it.
 
 Each answers the same questions at the same points of an encode: how many to keep before any
 training (:meth:`Sizing.plan`), which rows of a quantized patch to keep (:meth:`Sizing.fit`,
@@ -441,20 +441,35 @@ class SizeTarget(Sizing):
 
 class PresetPoint(SizeTarget):
     """No target, without retraining, with ``config.allocation``: the preset as a point of the
-    rate-distortion curve (DECISIONS D-33). Its codebook shapes set the bytes, those of its own
-    file with every Gaussian, and the precision search spends them as a size target of that
-    file would, every Gaussian kept; where no precision is predicted to beat the preset's own
-    at those bytes, the preset's file is written."""
+    rate-distortion curve (DECISIONS D-33, D-34). Its codebook shapes set the bytes: the
+    precision search's prediction of their option bytes with every Gaussian, the rate model
+    that makes every other choice. The search spends them on the allocation predicted to render
+    closest, every Gaussian kept; where none beats the preset's own precision, the preset's
+    file is written. No file is written to find the bytes: the point lands within the
+    prediction's error of the shapes' own file, and under it where their large vector codebooks
+    compress or index contexts pay, which the prediction does not see."""
 
     def plan(self, patch: GaussianCloud, weights: np.ndarray, writer: SceneWriter,
              encoder: PatchEncoder, rows: np.ndarray | None = None) -> int:
-        self.target = pruned_file(writer, encoder, patch, weights, len(patch)).size
-        self.predicted_count = len(patch)
-        self.record["rate"] = {"target_bytes": self.target, "predicted_bytes": self.target,
-                               "unpruned_bytes": self.target, "predicted_count": len(patch),
-                               "preset_point": True}
-        self.allocate(patch, weights, writer, encoder, self.target, rows, len(patch))
+        start = time.perf_counter()
+        search = self.precision_search(patch, weights, encoder, rows)
+        preset = search.matching(encoder.config.entry_dims, encoder.config.stored_position_bits)
+        chosen = search.for_bytes(preset.bytes)
+        self.predicted_count = self.allocated_count = len(patch)
+        record = {"preset_bytes": round(preset.bytes), "preset_distortion": preset.distortion}
+        if chosen is not None and chosen.distortion < preset.distortion:
+            self.allocated = chosen.patch_config(encoder.config)
+            self.search, self.chosen = search, chosen
+            record.update(options=chosen.describe(), predicted_distortion=chosen.distortion,
+                          predicted_distortions={a: o.distortion
+                                                 for a, o in chosen.options.items()})
+        record["seconds"] = round(time.perf_counter() - start, 2)
+        self.record["rate"] = {"preset_point": True, "predicted_count": len(patch),
+                               "precision": record}
         return len(patch)
+
+    def overflows(self, writer: SceneWriter, encoding: PatchEncoding) -> bool:
+        return False  # the bytes are a prediction, not a limit
 
 
 class QualityTarget(Sizing):

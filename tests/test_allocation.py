@@ -173,17 +173,17 @@ def test_a_size_below_the_presets_keeps_the_file_that_renders_closest(scene):
 
 
 @pytest.mark.slow  # whole encodes with the search: 8-14 s each
-def test_a_preset_without_retraining_spends_its_own_files_bytes_by_the_search(scene, cameras):
-    """A no-retrain preset is a point of the curve (DECISIONS D-33): it writes at most the bytes
-    of its codebook shapes' file with every Gaussian and no sketch, keeps every Gaussian, and
-    renders closer to the input than that file."""
+def test_a_preset_without_retraining_spends_its_shapes_bytes_by_the_search(scene, cameras):
+    """A no-retrain preset is a point of the curve (DECISIONS D-33, D-34): the search spends
+    the bytes it predicts for the preset's codebook shapes, every Gaussian kept and no sketch.
+    The prediction overstates large vector codebooks and ignores the index contexts, both of
+    which this synthetic scene has more of than real ones: the point may come out smaller
+    than the shapes' own file, but never much larger, and it renders closer to the input."""
     shapes = encode(scene, dataclasses.replace(_config("balanced"), use_sketch=False))
     point = encode(scene, _config("balanced", point=True))
     rate = point.stats.rate
-    # the same Gaussians and codebooks; the metadata records the search's settings too
-    assert rate["preset_point"] and rate["target_bytes"] == pytest.approx(len(shapes.data),
-                                                                          abs=200), rate
-    assert len(point.data) <= rate["target_bytes"]
+    assert rate["preset_point"] and rate["precision"]["preset_bytes"] > 0, rate
+    assert len(point.data) <= 1.03 * len(shapes.data)
     assert point.stats.sketch_gaussians == 0 and len(spcodec.decode(point.data)) == len(scene)
     assert "options" in rate["precision"], rate  # the search beat the preset's own precision
     settings_ = RenderSettings(background=(0.0, 0.0, 0.0))

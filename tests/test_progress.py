@@ -172,3 +172,19 @@ def test_the_summary_of_a_size_target_says_how_many_gaussians_its_precision_kept
     stream = io.StringIO()
     progress.print_summary(stats, stream)
     assert f"  {line}; codebooks" in stream.getvalue()
+
+
+@pytest.mark.parametrize("precision, line", [
+    ({"preset_bytes": 90, "options": {"SCALE": {"entry_dim": 1, "entries": 64}}},
+     "its codebooks' 90 bytes (as the search predicts them) spent by the search"),
+    ({"preset_bytes": 90}, "nothing predicted to beat its own codebooks")])
+def test_the_summary_of_a_preset_point_says_what_its_bytes_are(precision, line):
+    """A no-retrain preset's point has no target (D-34): the summary says whose bytes it spent,
+    or that the preset's own precision was kept."""
+    stats = {"gaussians": 10, "bytes": 100, "sketch_gaussians": 0, "patch_gaussians": 10,
+             "sketch": {}, "patch_layers": 1, "sections": {"PATCH_ATTRIBUTES": 60},
+             "seconds": {}, "output": "o.spc",
+             "rate": {"preset_point": True, "predicted_count": 10, "precision": precision}}
+    stream = io.StringIO()
+    progress.print_summary(stats, stream)
+    assert f"  the preset's point: {line}" in stream.getvalue()

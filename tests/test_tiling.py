@@ -388,8 +388,8 @@ def test_a_preset_without_a_sketch_never_gets_one():
 
 
 def test_precision_search_makes_a_node_its_presets_point_and_redoes_it(small_ply, tmp_path):
-    """``precision_search=True`` encodes a node as a single file's preset is (DECISIONS D-33):
-    its preset's bytes spent by the precision search, recorded in the node's settings; the
+    """``precision_search=True`` encodes a node as a single file's preset is (DECISIONS D-33,
+    D-34): its preset's bytes spent by the precision search, recorded in the node's settings; the
     setting is in the digest, so switching it re-encodes the node. Off by default."""
     from spcodec.decoder import inspect
     from spcodec.errors import UsageError
@@ -402,7 +402,8 @@ def test_precision_search_makes_a_node_its_presets_point_and_redoes_it(small_ply
     plain = build_tileset(small_ply, tmp_path, TilingConfig(**whole))
     searched = build_tileset(small_ply, tmp_path, TilingConfig(**whole, precision_search=True))
     assert searched.nodes == 1 and searched.encoded_nodes == 1
-    assert searched.bytes <= plain.bytes
+    # the point spends the bytes the search predicts for the shapes (D-34): about theirs
+    assert searched.bytes <= 1.03 * plain.bytes
     [node] = node_files(tmp_path)
     settings = inspect(node).metadata["settings"]
     assert settings["allocation"] is not None and settings["use_sketch"] is False

@@ -251,10 +251,12 @@ def assign_rotation(values: np.ndarray, entries: np.ndarray) -> np.ndarray:
     flat = entries.astype(np.float64)[:, 0]
     order = np.argsort(flat, kind="stable")
     sorted_entries = flat[order]
+    # nearest entry by the midpoints between entries, as kmeans.nearest rounds one dimension
+    midpoints = (sorted_entries[1:] + sorted_entries[:-1]) / 2.0
     best = np.full(len(q), -1.0)
     out = np.zeros(q.shape, np.uint8)
     for scale in ROTATION_SCALES:
-        idx = _nearest_sorted(sorted_entries, q * scale)
+        idx = np.searchsorted(midpoints, q * scale)
         coded = sorted_entries[idx]
         norm = np.linalg.norm(coded, axis=1)
         cosine = np.abs((coded * q).sum(axis=1)) / np.where(norm > 0, norm, np.inf)
@@ -262,16 +264,6 @@ def assign_rotation(values: np.ndarray, entries: np.ndarray) -> np.ndarray:
         best[better] = cosine[better]
         out[better] = order[idx[better]]
     return out
-
-
-def _nearest_sorted(sorted_entries: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """Position in ``sorted_entries`` of the nearest entry to each value (ties: the lower)."""
-    hi = np.clip(np.searchsorted(sorted_entries, values), 1, max(len(sorted_entries) - 1, 1))
-    lo = hi - 1
-    if len(sorted_entries) == 1:
-        return np.zeros(values.shape, np.int64)
-    closer_lo = np.abs(values - sorted_entries[lo]) <= np.abs(sorted_entries[hi] - values)
-    return np.where(closer_lo, lo, hi)
 
 
 def assign_attribute(attribute: PatchAttribute, values: np.ndarray,

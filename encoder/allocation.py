@@ -329,11 +329,17 @@ def _option(sample: GaussianCloud, attr: PatchAttribute, codebook: Codebook, idx
     given this option's count adds it again)."""
     changed = sample.subset(np.arange(len(sample)))
     fill_patch_attributes({attr: idx.T}, [codebook], changed)
-    mse = sum(weight.get(name, 1.0) * float(s.mse(sample, changed).sum())
+    part = _SENSITIVITY_PART.get(attr.name, "sh")
+    mse = sum(weight.get(name, 1.0) * float(s.mse(sample, changed, only=part).sum())
               for name, s in framing.items())
     entries = codebook.entries
     return Option(attr.name, entries.shape[1], trained, _index_bits(idx), int(entries.size * 2),
                   mse * scale, bit_cost, zero_entry)
+
+
+_SENSITIVITY_PART = {"SCALE": "scales", "ROTATION": "quats", "OPACITY": "opacities"}
+"""The :class:`Sensitivity` terms a codebook option of each attribute moves (colour DC and the
+SH bands: "sh"); an option's distortion sums those alone, the rest unchanged by it."""
 
 
 def _weighted_error(coded: np.ndarray, codebook: np.ndarray, indices: np.ndarray,

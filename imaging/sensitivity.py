@@ -26,6 +26,10 @@ from .cameras import Camera
 from .render import GaussianParams, RenderSettings, render
 
 
+PARTS = ("means", "scales", "quats", "opacities", "sh")
+"""The parameters :class:`Sensitivity` holds, in the order :meth:`Sensitivity.mse` sums them."""
+
+
 @dataclass
 class Sensitivity:
     """diag(J^T J) per pixel and channel, for each parameter of each Gaussian (arrays in the
@@ -40,17 +44,24 @@ class Sensitivity:
     opacities: np.ndarray
     sh: np.ndarray
 
-    def mse(self, original: GaussianCloud, changed: GaussianCloud) -> np.ndarray:
+    def mse(self, original: GaussianCloud, changed: GaussianCloud,
+            only: str | None = None) -> np.ndarray:
         """Predicted image MSE (n,) each Gaussian's change adds; quaternions are compared as the
-        rotation they code (sign and norm aligned with the original's)."""
-        sh = np.concatenate([changed.sh_dc[:, None] - original.sh_dc[:, None],
-                             changed.sh_rest - original.sh_rest], axis=1)
-        parts = [self.means * _sq(changed.means - original.means),
-                 self.scales * _sq(changed.scales - original.scales),
-                 self.quats * _sq(aligned_quat_delta(changed.quats, original.quats)),
-                 (self.opacities * _sq(changed.opacities - original.opacities))[:, None],
-                 (self.sh * _sq(sh)).reshape(len(original), -1)]
-        return sum(part.sum(axis=1) for part in parts)
+        rotation they code (sign and norm aligned with the original's). ``only`` (one of
+        :data:`PARTS`) sums that parameter's terms alone, for a change known to touch no other
+        (a codebook option of one attribute: the others' terms are exact zeros, or for the
+        quaternion, rounding noise the same for every option)."""
+        terms = {
+            "means": lambda: self.means * _sq(changed.means - original.means),
+            "scales": lambda: self.scales * _sq(changed.scales - original.scales),
+            "quats": lambda: self.quats * _sq(aligned_quat_delta(changed.quats, original.quats)),
+            "opacities": lambda: (self.opacities
+                                  * _sq(changed.opacities - original.opacities))[:, None],
+            "sh": lambda: (self.sh * _sq(np.concatenate(
+                [changed.sh_dc[:, None] - original.sh_dc[:, None],
+                 changed.sh_rest - original.sh_rest], axis=1))).reshape(len(original), -1)}
+        names = PARTS if only is None else (only,)
+        return sum(terms[name]().sum(axis=1) for name in names)
 
     def subset(self, rows: np.ndarray) -> "Sensitivity":
         return Sensitivity(self.means[rows], self.scales[rows], self.quats[rows],

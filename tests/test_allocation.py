@@ -63,6 +63,26 @@ def test_a_quaternion_and_its_negative_multiple_are_no_change(scene, cameras):
     assert float(sensitivity.mse(scene, flipped).sum()) == pytest.approx(0.0, abs=1e-12)
 
 
+def test_the_prediction_of_one_parameter_is_its_share_of_the_whole(scene, cameras):
+    """``Sensitivity.mse(only=part)``: the parts sum to the whole, and a change of the colour
+    alone predicts, from the "sh" terms alone, what every term predicts (the quaternions',
+    unchanged, add rounding noise only)."""
+    from spcodec.imaging.sensitivity import PARTS
+
+    sensitivity = render_sensitivity(scene, cameras[:1], samples=1)
+    rng = np.random.default_rng(1)
+    changed = scene.subset(np.arange(len(scene)))
+    changed.sh_dc[:] += rng.normal(0, 0.02, scene.sh_dc.shape).astype(np.float32)
+    changed.scales[:] += rng.normal(0, 0.02, scene.scales.shape).astype(np.float32)
+    whole = sensitivity.mse(scene, changed)
+    assert np.allclose(sum(sensitivity.mse(scene, changed, only=p) for p in PARTS), whole)
+    colour = scene.subset(np.arange(len(scene)))
+    colour.sh_dc[:] = changed.sh_dc
+    assert np.allclose(sensitivity.mse(scene, colour, only="sh"), sensitivity.mse(scene, colour),
+                       rtol=1e-9, atol=1e-18)
+    assert sensitivity.mse(scene, colour, only="scales").sum() == 0.0
+
+
 @pytest.fixture(scope="module")
 def search(scene, cameras):
     settings = RenderSettings(background=(0.0, 0.0, 0.0))

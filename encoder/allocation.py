@@ -546,13 +546,18 @@ def _placed_framings(cloud: GaussianCloud, config: EncoderConfig,
 
 
 def patch_sensitivity(patch: GaussianCloud, config: EncoderConfig, allocation: AllocationConfig,
-                      device: str = "auto") -> dict[str, Sensitivity]:
-    """The patch's :class:`Sensitivity` at each of :func:`training_framings`."""
+                      device: str = "auto"
+                      ) -> tuple[dict[str, Sensitivity], dict[str, list[np.ndarray]]]:
+    """The patch's :class:`Sensitivity` at each of :func:`training_framings`, and its pictures
+    there (what :func:`framing_renders` returns, from the same forward passes)."""
     from spcodec.imaging.render import resolve_device
     from spcodec.imaging.sensitivity import render_sensitivity
 
     settings = config.render_settings((0.0, 0.0, 0.0))
     device = resolve_device(device)
-    return {name: render_sensitivity(patch, cameras, settings, allocation.probes, device,
-                                     config.seed)
-            for name, cameras in training_framings(patch, config, allocation).items()}
+    sensitivity, pictures = {}, {}
+    for name, cameras in training_framings(patch, config, allocation).items():
+        pictures[name] = []
+        sensitivity[name] = render_sensitivity(patch, cameras, settings, allocation.probes,
+                                               device, config.seed, pictures[name])
+    return sensitivity, pictures

@@ -150,8 +150,10 @@ class Sizing:
         config = self.config.allocation
         scene = self.original if self.original is not None and rows is not None else patch
         if self.sensitivity is None or self.sensitivity_of is not scene:
-            self.sensitivity = patch_sensitivity(scene, self.config, config, self.device)
-            self.sensitivity_of = scene
+            # its forward passes are the reference renders at the same framings
+            self.sensitivity, pictures = patch_sensitivity(scene, self.config, config,
+                                                           self.device)
+            self.sensitivity_of, self.renders = scene, (scene, pictures)
         framings = self.sensitivity if scene is patch else \
             {name: s.subset(rows) for name, s in self.sensitivity.items()}
         search = PrecisionSearch.measure(patch, framings, encoder.kmeans_weights(weights),

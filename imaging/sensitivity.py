@@ -84,9 +84,12 @@ def _sq(delta: np.ndarray) -> np.ndarray:
 
 def render_sensitivity(cloud: GaussianCloud, cameras: Sequence[Camera],
                        settings: RenderSettings | None = None, samples: int = 1,
-                       device: str | torch.device = "cpu", seed: int = 0) -> Sensitivity:
+                       device: str | torch.device = "cpu", seed: int = 0,
+                       pictures: list[np.ndarray] | None = None) -> Sensitivity:
     """:class:`Sensitivity` of ``cloud`` averaged over ``cameras`` (``samples`` random
-    projections each, seeded)."""
+    projections each, seeded). ``pictures``, when given, receives each camera's picture as
+    :func:`~spcodec.imaging.render.render_image` returns it (the same values): the forward
+    pass the sensitivity takes anyway."""
     settings = settings or RenderSettings()
     params = GaussianParams.from_cloud(cloud, device, requires_grad=True)
     tensors = params.tensors()
@@ -94,8 +97,10 @@ def render_sensitivity(cloud: GaussianCloud, cameras: Sequence[Camera],
     generator = torch.Generator(device=params.device).manual_seed(seed)
     pixels = 0
     for camera in cameras:
-        for _ in range(samples):
+        for sample in range(samples):
             image = render(params, camera, settings).image
+            if pictures is not None and sample == 0:
+                pictures.append(image.detach().clamp(0.0, 1.0).to("cpu", torch.float32).numpy())
             probe = torch.randn(image.shape, generator=generator, device=image.device)
             grads = torch.autograd.grad((image * probe).sum(), tensors, allow_unused=True)
             for acc, grad in zip(total, grads):

@@ -366,7 +366,11 @@ def test_a_sizing_made_again_for_the_same_scene_measures_its_sensitivity_and_ren
     again = sizing_module.SizeTarget(config, scene, "cpu")
     again.inherit(first)
     again.precision_search(scene, weights, encoder, np.arange(len(scene)))
-    assert calls == {"patch_sensitivity": 1, "framing_renders": 1}
+    # the sensitivity's forward passes are the reference: nothing rendered twice
+    assert calls == {"patch_sensitivity": 1, "framing_renders": 0}
+    reference = sizing_module.framing_renders(scene, config, config.allocation, "cpu")
+    assert all(np.array_equal(a, b) for name in reference
+               for a, b in zip(reference[name], again.reference(scene)[name]))
 
 
 

@@ -168,7 +168,8 @@ STILL_MISSED = (
      "met on guitar (+0.06 / +0.09 dB at 68 % of its bytes); donut 0.04 dB short at the orbit "
      "(0.36 before its nodes lost their sketch), met close up, at 77 %: a 2,852-Gaussian node's "
      "encode moves it by 0.3-0.8 dB; with `spcodec tile --precision-search` donut is met at both "
-     "framings (+0.34 / +0.51 dB), but the build took 13.6-31x the time (LOG 26.3)", "25.3"),
+     "framings (+0.34 / +0.51 dB), but the build took 13.6-31x the time (LOG 26.3; on guitar "
+     "2.8-2.9x the wall time now, LOG 27.6)", "25.3"),
     ("Transparent preset smaller than SPZ and as good on biker",
      "missed: biker is SPZ's own output, which SPZ re-encodes exactly", "14.4"),
     ("SOG for fourth_st", "not measured: splat-transform did not finish in 110 CPU minutes", "13.21"),

@@ -216,6 +216,19 @@ def test_a_preset_without_retraining_spends_its_shapes_bytes_by_the_search(scene
     assert psnr(point) > psnr(shapes)
 
 
+@pytest.mark.slow  # a whole encode with the search
+def test_a_point_nothing_beats_writes_the_presets_own_precision(scene, monkeypatch):
+    """Where the search finds no allocation predicted to beat the preset's at its bytes, the
+    point is the preset's own file: every Gaussian at the preset's codebook shapes, no sketch."""
+    monkeypatch.setattr(PrecisionSearch, "for_bytes", lambda self, budget, count=None: None)
+    point = encode(scene, _config("balanced", point=True))
+    assert point.stats.rate["preset_point"] and "options" not in point.stats.rate["precision"]
+    shapes = encode(scene, dataclasses.replace(_config("balanced"), use_sketch=False))
+    ours, theirs = spcodec.decode(point.data), spcodec.decode(shapes.data)
+    for field in ("means", "scales", "quats", "opacities", "sh_dc", "sh_rest"):
+        assert np.array_equal(getattr(ours, field), getattr(theirs, field)), field
+
+
 def test_no_retrain_presets_that_may_prune_are_points_and_the_rest_keep_their_shapes():
     """Which configurations :class:`PresetPoint` sizes: a no-retrain preset that may prune;
     not transparent (it keeps its fixed precision), not a retrained preset, not ``point=False``

@@ -150,7 +150,7 @@ STILL_MISSED = (
      "point, 187 µs a Gaussian) and 1.18x the old preset's", "26.4"),
     ("No-retrain targeted encode at most 2x the balanced encode's time",
      "met at guitar 0.75x (1.77x); missed at seven other points, 2.29-3.74x the old balanced "
-     "encode unloaded on guitar, fourth_st, kacytran and donut (6-19 % less CPU than bb02d5d, "
+     "encode unloaded on guitar, fourth_st, kacytran and donut (7-19 % less CPU than bb02d5d, "
      "the same files, LOG 27.3; 24.2 measured 2.07-3.09x against a loaded balanced run); below "
      "the preset's file D-31's candidates, each written and rendered, are most of the 0.55x "
      "points' time; fourth_st's is its trials' full-count quantization. The no-retrain presets, "

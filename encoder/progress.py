@@ -189,9 +189,10 @@ def print_summary(stats: dict, stream: TextIO | None = None) -> None:
         actual = stats["bytes"]
         if rate.get("preset_point"):  # no target: the bytes the search predicts for the shapes
             spent = rate["precision"]["preset_bytes"]
-            print_(f"  the preset's point: its codebooks' {spent:,} bytes (as the search "
-                   "predicts them) spent by the search" if "options" in rate["precision"] else
-                   "  the preset's point: nothing predicted to beat its own codebooks")
+            what = (f"its codebooks' {spent:,} bytes (as the search predicts them) spent by the "
+                    "search" if "options" in rate["precision"] else
+                    "nothing predicted to beat its own codebooks")
+            print_(f"  the preset's point: {what}")
         else:
             print_(f"  target {rate['target_bytes']:,} bytes: predicted "
                    f"{rate['predicted_bytes']:,}, actual {actual:,} "

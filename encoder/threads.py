@@ -2,9 +2,10 @@
 
 The libraries under the encoder (numpy's BLAS, scikit-learn's OpenMP) thread their own inner
 loops over every core. On a shared 2-core machine those fine-grained threads stall whenever
-another process runs, and burn CPU time waiting (docs/LOG.md 27.1). The encoder instead runs whole tasks (an attribute's
-codebooks, a layer's sections) on ``jobs`` threads of its own, each task on one library thread,
-so ``--jobs 1`` means one core and results never depend on the thread count.
+another process runs, and burn CPU time waiting (docs/LOG.md 27.1). The encoder instead runs
+whole tasks (an attribute's codebooks, its precision options) on ``jobs`` threads of its own,
+each task on one library thread, so ``--jobs 1`` means one core and results never depend on the
+thread count.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ def map_tasks(fn: Callable[[T], R], tasks: Sequence[T], jobs: int | None,
     if cost is not None:
         order.sort(key=lambda i: -cost(tasks[i]))
     jobs = min(jobs or default_jobs(), max(len(tasks), 1))
+
     def run(i: int) -> R:
         # OpenMP's thread count belongs to the thread that sets it: each worker sets its own
         with threadpool_limits(limits=1, user_api="openmp"):

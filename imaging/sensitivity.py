@@ -23,7 +23,7 @@ import torch
 from spcodec.cloud import GaussianCloud
 
 from .cameras import Camera
-from .render import GaussianParams, RenderSettings, render
+from .render import GaussianParams, RenderSettings, picture, render
 
 
 PARTS = ("means", "scales", "quats", "opacities", "sh")
@@ -100,7 +100,7 @@ def render_sensitivity(cloud: GaussianCloud, cameras: Sequence[Camera],
         for sample in range(samples):
             image = render(params, camera, settings).image
             if pictures is not None and sample == 0:
-                pictures.append(image.detach().clamp(0.0, 1.0).to("cpu", torch.float32).numpy())
+                pictures.append(picture(image))
             probe = torch.randn(image.shape, generator=generator, device=image.device)
             grads = torch.autograd.grad((image * probe).sum(), tensors, allow_unused=True)
             for acc, grad in zip(total, grads):

@@ -13,7 +13,7 @@ Torch is imported here and by what trains with it (the encoder, :mod:`spcodec.im
 never by the decoder or the format layer.
 """
 
-from .api import render, render_image, resolve_backend, resolve_device
+from .api import picture, render, render_image, resolve_backend, resolve_device
 from .params import GaussianParams
 from .settings import RenderResult, RenderSettings
 

@@ -73,5 +73,11 @@ def render_image(scene: GaussianCloud | GaussianParams, camera: Camera,
     with torch.no_grad():
         if isinstance(scene, GaussianCloud):
             scene = GaussianParams.from_cloud(scene, resolve_device(device))
-        result = render(scene, camera, settings, backend)
-        return result.image.clamp(0.0, 1.0).to("cpu", torch.float32).numpy()
+        return picture(render(scene, camera, settings, backend).image)
+
+
+def picture(image: torch.Tensor) -> np.ndarray:
+    """A rendered image as :func:`render_image` returns it: clamped to [0, 1], float32, on the
+    CPU (a renderer's forward pass taken for other ends, such as a sensitivity, gives the same
+    picture through it)."""
+    return image.detach().clamp(0.0, 1.0).to("cpu", torch.float32).numpy()

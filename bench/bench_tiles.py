@@ -42,7 +42,7 @@ import numpy as np
 from spcodec import GaussianCloud, read_ply, write_ply
 from spcodec.fileio import atomic_write
 from spcodec.ply import ply_bytes
-from spcodec.tiling.config import TilingConfig
+from spcodec.tiling.config import PRECISION_SEARCHES, TilingConfig
 
 from scenes import CITY_BASES, REAL, city_scene, data_dir, load_scene, tiled_copies  # bench/ on sys.path
 
@@ -91,7 +91,7 @@ def run_one(args: argparse.Namespace) -> None:
         sketch = TilingConfig.sketch if args.sketch is None else args.sketch
         summary = build_tileset(args.input, args.output, TilingConfig(
             leaf_size=args.leaf_size, branching=args.branching, workers=args.workers,
-            sketch=sketch, keep_work=True))
+            sketch=sketch, precision_search=args.precision_search, keep_work=True))
         per_level: dict[int, list[int]] = {}
         stack = [json.loads(summary.tileset.read_text())["root"]]
         while stack:
@@ -215,8 +215,12 @@ def level_near(doc: dict, target: float) -> tuple[int, list[dict]]:
 
 def decimate(args: argparse.Namespace) -> None:
     """Coarse level against splat-transform's decimation to the same count, per scene."""
+    import torch
+
     from spcodec.decoder import decode
     from spcodec.tiling import build_tileset
+
+    torch.set_num_threads(1)  # the nodes run in this process, one core's worth as a worker's
 
     tool = splat_transform()
     shown = subprocess.run([tool, "-v"], capture_output=True, text=True)
@@ -229,7 +233,8 @@ def decimate(args: argparse.Namespace) -> None:
         leaf = args.leaf_size or 1 << int(np.ceil(np.log2(n / 16)))
         start = time.perf_counter()
         summary = build_tileset(original, work / "tileset", TilingConfig(
-            leaf_size=leaf, branching=4, workers=0, sketch=args.sketch))
+            leaf_size=leaf, branching=4, workers=0, sketch=args.sketch,
+            precision_search=args.precision_search))
         built = time.perf_counter() - start
         doc = json.loads(summary.tileset.read_text())
         level, chosen = level_near(doc, n / 16)
@@ -248,6 +253,7 @@ def decimate(args: argparse.Namespace) -> None:
                "level_bytes": sum(t["extras"]["spcodec"]["bytes"] for t in chosen),
                "decimated_ply_bytes": theirs.stat().st_size,
                "decimated_compressed_ply_bytes": packed.stat().st_size,
+               "precision_search": args.precision_search,
                "tileset_seconds": round(built, 1), "decimate_seconds": round(decimated, 1),
                "level_psnr": two_framings(original, ours, FRAMINGS[name]),
                "decimated_psnr": two_framings(original, theirs, FRAMINGS[name])}
@@ -255,6 +261,8 @@ def decimate(args: argparse.Namespace) -> None:
         print(json.dumps(row), flush=True)
         rows.append(row)
     sketch = [] if args.sketch == TilingConfig.sketch else ["--sketch" if args.sketch else "--no-sketch"]
+    if args.precision_search != TilingConfig.precision_search:
+        sketch.append(f"--precision-search {args.precision_search}")
     doc = {"command": " ".join(["python bench/bench_tiles.py decimate --work DIR --scenes",
                                 *args.scenes, *sketch]),
            "splat_transform": version, "renderer": "../shared/tools/two-framings.sh (PlayCanvas)",
@@ -292,6 +300,9 @@ def main() -> None:
                    help="the encodes build a sketch (default: the mode's own: the tiling's for "
                    "tiled, the preset's point without one for single; given, single keeps the "
                    "preset's own codebooks)")
+    r.add_argument("--precision-search", choices=PRECISION_SEARCHES,
+                   default=TilingConfig.precision_search,
+                   help="tiled: nodes that are their preset's point (default: %(default)s)")
     g = sub.add_parser("merges")
     g.add_argument("tileset")
     g.add_argument("--nodes", type=int, default=4)
@@ -304,6 +315,9 @@ def main() -> None:
                    help="default: the power of two at or above 1/16 of the scene, so the root is that level")
     d.add_argument("--sketch", action=argparse.BooleanOptionalAction,
                    default=TilingConfig.sketch, help="nodes' encodes build a sketch (default: %(default)s)")
+    d.add_argument("--precision-search", choices=PRECISION_SEARCHES,
+                   default=TilingConfig.precision_search,
+                   help="nodes that are their preset's point (default: %(default)s)")
     d.add_argument("--results", default=str(RESULTS), help="the JSON written (default: %(default)s)")
     args = p.parse_args()
     {"make": make, "compare": compare, "run-one": run_one, "merges": merges,

@@ -17,7 +17,7 @@ prints only its result."""
 
 
 def configure(p: argparse.ArgumentParser) -> None:
-    from spcodec.tiling.config import TilingConfig
+    from spcodec.tiling.config import PRECISION_SEARCHES, TilingConfig
 
     defaults = TilingConfig()
     p.add_argument("input", help="the scene (a binary PLY or a .splat is read memory-mapped, a "
@@ -32,13 +32,15 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preset", default=defaults.preset,
                    help="the no-retrain preset every node is encoded with (default: %(default)s)")
     p.add_argument("--sketch", action=argparse.BooleanOptionalAction, default=defaults.sketch,
-                   help="let every node's encode build a sketch, as the preset would in one file; "
-                   "in nodes it cost CPU and bought no quality at equal bytes (default: no "
-                   "sketch)")
-    p.add_argument("--precision-search", action="store_true",
-                   help="make every node its preset's point of the rate-distortion curve, as one "
-                   "file is: better pictures at equal bytes, several times the time on small "
-                   "nodes (default: the preset's own codebooks)")
+                   help="let the encodes of nodes that are not points of the curve (see "
+                   "--precision-search) build a sketch, as the preset would in one file; in nodes "
+                   "it cost CPU and bought no quality at equal bytes (default: no sketch)")
+    p.add_argument("--precision-search", nargs="?", const="all", default=defaults.precision_search,
+                   choices=PRECISION_SEARCHES, metavar="NODES",
+                   help="make nodes their preset's point of the rate-distortion curve, as one file "
+                   "is: better pictures at equal bytes, for the search's fixed cost in each node "
+                   "searched; NODES is none, inner (the merged coarser levels) or all (the "
+                   "flag alone) (default: %(default)s)")
     p.add_argument("--workers", type=Bounded(int, 0), default=defaults.workers, metavar="N",
                    help="local worker processes, one thread each, %(type)s; 0 encodes in this "
                    "process (default: %(default)s)")

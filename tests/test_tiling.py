@@ -388,30 +388,53 @@ def test_a_preset_without_a_sketch_never_gets_one():
 
 
 def test_precision_search_makes_a_node_its_presets_point_and_redoes_it(small_ply, tmp_path):
-    """``precision_search=True`` encodes a node as a single file's preset is (DECISIONS D-33,
+    """``precision_search="all"`` encodes a node as a single file's preset is (DECISIONS D-33,
     D-34): its preset's bytes spent by the precision search, recorded in the node's settings; the
-    setting is in the digest, so switching it re-encodes the node. Off by default."""
+    setting is in the digest, so switching it re-encodes the node."""
     from spcodec.decoder import inspect
     from spcodec.errors import UsageError
     from spcodec.tiling.build import NodeJob, encoder_config
 
-    assert TilingConfig().precision_search is False
     job = NodeJob("n", (), "digest", ".", "balanced", 0, 4, True, True)
     assert encoder_config(job).allocation is not None and encoder_config(job).use_sketch is False
     whole = dict(leaf_size=2048, branching=2, workers=0)
-    plain = build_tileset(small_ply, tmp_path, TilingConfig(**whole))
-    searched = build_tileset(small_ply, tmp_path, TilingConfig(**whole, precision_search=True))
+    plain = build_tileset(small_ply, tmp_path, TilingConfig(**whole, precision_search="none"))
+    searched = build_tileset(small_ply, tmp_path, TilingConfig(**whole, precision_search="all"))
     assert searched.nodes == 1 and searched.encoded_nodes == 1
     # the point spends the bytes the search predicts for the shapes (D-34): about theirs
     assert searched.bytes <= 1.03 * plain.bytes
     [node] = node_files(tmp_path)
     settings = inspect(node).metadata["settings"]
     assert settings["allocation"] is not None and settings["use_sketch"] is False
-    with pytest.raises(UsageError, match="--precision-search makes every node its preset's "
+    with pytest.raises(UsageError, match="--precision-search all makes every node its preset's "
                                          "point, which builds no sketch"):
         build_tileset(small_ply, tmp_path / "both", TilingConfig(**whole, sketch=True,
-                                                                 precision_search=True))
+                                                                 precision_search="all"))
     assert not (tmp_path / "both").exists()
+    with pytest.raises(UsageError, match="precision search must be one of none, inner, all, "
+                                         "got 'leaves'"):
+        build_tileset(small_ply, tmp_path / "bad", TilingConfig(**whole, precision_search="leaves"))
+    assert not (tmp_path / "bad").exists()
+
+
+def test_an_inner_precision_search_makes_only_the_merged_levels_points(small_ply, tmp_path):
+    """``precision_search="inner"``: the merged coarser levels are points of the curve, the
+    leaves keep the preset's own shapes (their files are those of a build without the search)."""
+    from spcodec.decoder import inspect
+
+    whole = dict(**SMALL, workers=0)
+    assert [TilingConfig(precision_search=p).searches(inner) for p in ("none", "inner", "all")
+            for inner in (False, True)] == [False, False, False, True, True, True]
+    build_tileset(small_ply, tmp_path / "none", TilingConfig(**whole, precision_search="none"))
+    build_tileset(small_ply, tmp_path / "inner", TilingConfig(**whole, precision_search="inner"))
+    records = {p.stem: json.loads(p.read_text()) for p in (tmp_path / "inner" / "nodes").glob("*.json")}
+    inner = {i for i in records if any(j != i and j.startswith(i) for j in records)}
+    assert inner and len(inner) < len(records)
+    for node in node_files(tmp_path / "inner"):
+        searched = inspect(node).metadata["settings"]["allocation"] is not None
+        assert searched == (node.stem in inner)
+        plain = (tmp_path / "none" / "nodes" / node.name).read_bytes()
+        assert (node.read_bytes() == plain) == (node.stem not in inner)
 
 
 @pytest.mark.parametrize("module", ["spcodec", "tiling"])
@@ -434,10 +457,13 @@ def test_both_clis_pass_the_sketch_setting(module, flag, expected, scene_ply, tm
     args = [str(scene_ply), "-o", str(tmp_path / "out"), "--workers", "0", *flag]
     assert (spcodec(["tile", *args]) if module == "spcodec" else tiling_main.main(args)) == 2
     assert [config.sketch for config in seen] == [expected]
-    assert [config.precision_search for config in seen] == [False]
-    assert (spcodec(["tile", *args, "--precision-search"]) if module == "spcodec"
-            else tiling_main.main([*args, "--precision-search"])) == 2
-    assert seen[-1].precision_search is True
+    assert [config.precision_search for config in seen] == [TilingConfig().precision_search]
+    for flags, searched in ((["--precision-search"], "all"),
+                            (["--precision-search", "inner"], "inner"),
+                            (["--precision-search=none"], "none")):
+        assert (spcodec(["tile", *args, *flags]) if module == "spcodec"
+                else tiling_main.main([*args, *flags])) == 2
+        assert seen[-1].precision_search == searched
 
 
 @pytest.mark.slow  # starts a Dask cluster: 20-80 s on a busy 2-core machine

@@ -8,7 +8,7 @@ import sys
 from spcodec.encoder.progress import StageReporter
 from spcodec.errors import SpcodecError
 
-from .config import TilingConfig
+from .config import PRECISION_SEARCHES, TilingConfig
 from .tileset_build import build_tileset
 
 
@@ -25,12 +25,14 @@ def parser() -> argparse.ArgumentParser:
                         f"{defaults.branching})")
     p.add_argument("--preset", default=defaults.preset, help="encoder preset of every node")
     p.add_argument("--sketch", action=argparse.BooleanOptionalAction, default=defaults.sketch,
-                   help="build a sketch in every node's encode (default: no sketch; it did not "
-                        "pay in nodes)")
-    p.add_argument("--precision-search", action="store_true",
-                   help="make every node its preset's point of the rate-distortion curve, as one "
-                   "file is: better pictures at equal bytes, several times the time on small "
-                   "nodes (default: the preset's own codebooks)")
+                   help="build a sketch in the encodes of nodes that are not points of the curve "
+                        "(default: no sketch; it did not pay in nodes)")
+    p.add_argument("--precision-search", nargs="?", const="all", default=defaults.precision_search,
+                   choices=PRECISION_SEARCHES, metavar="NODES",
+                   help="make nodes their preset's point of the rate-distortion curve, as one file "
+                   "is: better pictures at equal bytes, for the search's fixed cost in each node "
+                   "searched; NODES is none, inner (the merged coarser levels) or all (the "
+                   "flag alone) (default: %(default)s)")
     p.add_argument("--workers", type=int, default=defaults.workers,
                    help="local worker processes; 0 runs in this process")
     p.add_argument("--cluster", help="address of a running Dask scheduler (tcp://host:8786)")

@@ -55,8 +55,8 @@ class NodeJob:
     sketch: bool
     """Whether the encode may build a sketch (:attr:`.config.TilingConfig.sketch`)."""
     precision_search: bool = False
-    """Whether the node is its preset's point of the curve
-    (:attr:`.config.TilingConfig.precision_search`)."""
+    """Whether this node is its preset's point of the curve
+    (:meth:`.config.TilingConfig.searches`)."""
 
 
 def build_node(job: NodeJob, children: list[dict]) -> dict:

@@ -8,6 +8,9 @@ from spcodec.errors import UsageError
 
 BRANCHINGS = (2, 4, 8)
 
+PRECISION_SEARCHES = ("none", "inner", "all")
+"""The nodes :attr:`TilingConfig.precision_search` may name."""
+
 
 @dataclass(frozen=True)
 class TilingConfig:
@@ -30,13 +33,16 @@ class TilingConfig:
     """Whether the nodes' encodes build a sketch (``--sketch``). Off by default: in a tileset's
     nodes, leaves and merged inner nodes alike, the sketch's cluster search cost a third of a
     node's CPU where it found no cluster and, where it did, its files were worse at equal bytes
-    (docs/LOG.md, issue 39). It can only take the preset's sketch away, never add one."""
-    precision_search: bool = False
-    """Whether each node is its preset's point of the rate-distortion curve, as a single file is
+    (docs/LOG.md, issue 39). It can only take the preset's sketch away, never add one, and only
+    from nodes that are not points of the curve (:attr:`precision_search`): a point builds none."""
+    precision_search: str = "inner"
+    """Which nodes are their preset's point of the rate-distortion curve, as a single file is
     (``--precision-search``, DECISIONS D-33): the preset's bytes spent by the precision search,
-    without a sketch. Off by default: on guitar in leaves of 8,192 it gained 6.8 / 7.7 dB at
-    equal bytes but took 13.6x the tileset's time, the search's fixed cost paid per node
-    (docs/LOG.md 26.3)."""
+    without a sketch. One of :data:`PRECISION_SEARCHES`: ``"none"`` (the preset's own codebook
+    shapes), ``"inner"`` (the merged coarser levels, DECISIONS D-35) or ``"all"``. The search's
+    fixed cost is paid per node searched: the coarser levels are a quarter of the nodes and the
+    first picture of every view, where it gained 1.8-3.5 dB at fewer bytes for 1.46x the build's
+    time; every node took 13.6x on guitar's leaves of 8,192 (docs/LOG.md 26.3, 28.2)."""
     workers: int = 2
     cluster: str | None = None
     seed: int = 0
@@ -68,6 +74,14 @@ class TilingConfig:
             raise UsageError(f"chunk rows must be positive, got {self.chunk_rows}")
         if self.retries < 0:
             raise UsageError(f"retries must be 0 or more, got {self.retries}")
-        if self.sketch and self.precision_search:
-            raise UsageError("--precision-search makes every node its preset's point, which "
-                             "builds no sketch (DECISIONS D-33): drop --sketch or it")
+        if self.precision_search not in PRECISION_SEARCHES:
+            raise UsageError(f"precision search must be one of {', '.join(PRECISION_SEARCHES)}, "
+                             f"got {self.precision_search!r}")
+        if self.sketch and self.precision_search == "all":
+            raise UsageError("--precision-search all makes every node its preset's point, which "
+                             "builds no sketch (DECISIONS D-33): drop --sketch or choose inner "
+                             "or none")
+
+    def searches(self, inner: bool) -> bool:
+        """Whether a node (``inner``: a merged coarser level, else a leaf) is its preset's point."""
+        return self.precision_search == "all" or (inner and self.precision_search == "inner")

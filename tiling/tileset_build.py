@@ -97,7 +97,7 @@ def jobs_of(parts: Partition, out: Path, config: TilingConfig) -> list[NodeJob]:
     """One job per node, every node after its children."""
     folder = str(out.resolve())  # workers may run elsewhere (another working folder)
     return [NodeJob(n.id, tuple(n.children), n.leaf_digest, folder, config.preset, config.seed,
-                    config.branching, config.sketch, config.precision_search)
+                    config.branching, config.sketch, config.searches(bool(n.children)))
             for n in parts.bottom_up()]
 
 

@@ -165,11 +165,10 @@ STILL_MISSED = (
      "met for the command as a user runs it, 4.0x (one torch thread by default: 50.1 -> 12.6 s); "
      "2.5x in CPU s against LOG 17.4's one-thread run", "21.5"),
     ("A tileset's 1/16 level as good as splat-transform's decimation (third-party renderer)",
-     "met on guitar (+0.06 / +0.09 dB at 68 % of its bytes); donut 0.04 dB short at the orbit "
-     "(0.36 before its nodes lost their sketch), met close up, at 77 %: a 2,852-Gaussian node's "
-     "encode moves it by 0.3-0.8 dB; with `spcodec tile --precision-search` donut is met at both "
-     "framings (+0.34 / +0.51 dB), but the build took 13.6-31x the time (LOG 26.3; on guitar "
-     "2.8-2.9x the wall time now, LOG 27.6)", "25.3"),
+     "met on guitar (+0.16 / +0.21 dB at 67 % of its bytes) and donut (+0.34 / +0.51 at 77 %) "
+     "at the defaults: the merged inner nodes are points of the curve (D-35), for 1.33-1.9x "
+     "these small tilesets' build and 1.46x the 1 M tileset's; before, donut was 0.04 dB "
+     "short at the orbit, a 2,852-Gaussian node's encode moving it by 0.3-0.8 dB", "28.2"),
     ("Transparent preset smaller than SPZ and as good on biker",
      "missed: biker is SPZ's own output, which SPZ re-encodes exactly", "14.4"),
     ("SOG for fourth_st", "not measured: splat-transform did not finish in 110 CPU minutes", "13.21"),

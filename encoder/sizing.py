@@ -170,7 +170,58 @@ class FactorSizing(Sizing):
     """The default: no size or quality asked (see :class:`Sizing`)."""
 
 
-class SizeTarget(Sizing):
+class PrecisionSizing(Sizing):
+    """A sizing that may choose the patch's precision from the precision search: the chosen
+    allocation (:attr:`chosen`, of :attr:`search`) sets the codebooks the patch is quantized
+    with (:meth:`encoder_for`); none chosen, the preset's own."""
+
+    def __init__(self, config: EncoderConfig, original: GaussianCloud | None = None,
+                 device: str = "auto") -> None:
+        super().__init__(config, original, device)
+        self.allocated: PatchConfig | None = None
+        self.search: PrecisionSearch | None = None
+        self.chosen: Allocation | None = None
+
+    def adopt(self, search: PrecisionSearch, chosen: Allocation, encoder: PatchEncoder) -> dict:
+        """Quantize with ``chosen``; returns what the statistics record of the choice."""
+        self.allocated = chosen.patch_config(encoder.config)
+        self.search, self.chosen = search, chosen
+        return {"options": chosen.describe(), "predicted_distortion": chosen.distortion,
+                "predicted_distortions": {a: o.distortion for a, o in chosen.options.items()}}
+
+    def encoder_for(self, encoder: PatchEncoder) -> PatchEncoder:
+        if self.allocated is None:
+            return encoder
+        return PatchEncoder(self.allocated, seed=encoder.seed, jobs=encoder.jobs)
+
+    def drops_sketch(self, cloud: GaussianCloud, sketch: SketchOutcome, writer: SceneWriter,
+                     encoding: PatchEncoding) -> bool:
+        """Whether the sketch costs more picture than its bytes buy as precision: its predicted
+        error (the linearized renderer, as every option's) against the marginal rate of the
+        precision curve at the chosen point times the bytes the sketch saves (its Gaussians as
+        patch at the chosen precision and at the patch's bytes of position per Gaussian, less
+        the sketch's own sections)."""
+        if self.chosen is None or self.sensitivity is None or not sketch.sources:
+            return False
+        sources = np.concatenate(sketch.sources)
+        decoded = writer.decoded_sketch()
+        weight = self.config.allocation.linearized_weights()
+        error = sum(weight.get(name, 1.0) * float(s.subset(sources).mse(
+            cloud.subset(sources), decoded).sum()) for name, s in self.sensitivity.items())
+        sections = writer.write_file(encoding).layout.section_bytes()
+        sketch_bytes = sum(n for kind, n in sections.items() if kind.startswith("SKETCH"))
+        patch_count = max(sum(len(layer) for layer in encoding.layers), 1)
+        positions = 0 if "POSITION" in self.chosen.options else sections.get("PATCH_POSITIONS", 0)
+        per_gaussian = (self.chosen.bytes + positions) / patch_count
+        saved = len(sources) * per_gaussian - sketch_bytes
+        slope = self.search.slope_at(self.chosen)
+        decision = {"sketch_distortion": error, "bytes_saved": round(saved),
+                    "marginal_distortion_per_byte": slope, "dropped": error > slope * saved}
+        self.record["rate"]["sketch"] = decision
+        return decision["dropped"]
+
+
+class SizeTarget(PrecisionSizing):
     """``--target-size``: a file of at most ``config.target_size`` bytes.
 
     With retraining, and without ``config.allocation``, the least important patch Gaussians are
@@ -186,9 +237,6 @@ class SizeTarget(Sizing):
         super().__init__(config, original, device)
         self.target = int(config.target_size or 0)
         self.predicted_count: int | None = None
-        self.allocated: PatchConfig | None = None
-        self.search: PrecisionSearch | None = None
-        self.chosen: Allocation | None = None
         self.inherited: PrecisionSearch | None = None
         """The search an earlier size target of the same scene measured (:meth:`inherit`)."""
         self.verdict: tuple[float, float] | None = None
@@ -289,12 +337,8 @@ class SizeTarget(Sizing):
             size = None if data is None else len(data)
         record["seconds"] = round(time.perf_counter() - start, 2)
         if chosen is not None:
-            self.allocated = chosen.patch_config(encoder.config)
+            record.update(self.adopt(search, chosen, encoder))
             self.allocated_count = count
-            self.search, self.chosen = search, chosen
-            record.update(options=chosen.describe(), predicted_distortion=chosen.distortion,
-                          predicted_distortions={a: o.distortion
-                                                 for a, o in chosen.options.items()})
             self.record["rate"].update(predicted_bytes=size, predicted_count=count)
             self.record["rate"].pop("note", None)
         self.record["rate"]["precision"] = record
@@ -380,35 +424,9 @@ class SizeTarget(Sizing):
                               for (w, c), r in zip(cameras, reference)) / total)
         return scores
 
-    def drops_sketch(self, cloud: GaussianCloud, sketch: SketchOutcome, writer: SceneWriter,
-                     encoding: PatchEncoding) -> bool:
-        """Whether the sketch costs more picture than its bytes buy as precision: its predicted
-        error (the linearized renderer, as every option's) against the marginal rate of the
-        precision curve at the chosen point times the bytes the sketch saves (its Gaussians as
-        patch at the chosen precision and at the patch's bytes of position per Gaussian, less
-        the sketch's own sections)."""
-        if self.chosen is None or self.sensitivity is None or not sketch.sources:
-            return False
-        sources = np.concatenate(sketch.sources)
-        decoded = writer.decoded_sketch()
-        weight = self.config.allocation.linearized_weights()
-        error = sum(weight.get(name, 1.0) * float(s.subset(sources).mse(
-            cloud.subset(sources), decoded).sum()) for name, s in self.sensitivity.items())
-        sections = writer.write_file(encoding).layout.section_bytes()
-        sketch_bytes = sum(n for kind, n in sections.items() if kind.startswith("SKETCH"))
-        patch_count = max(sum(len(layer) for layer in encoding.layers), 1)
-        positions = 0 if "POSITION" in self.chosen.options else sections.get("PATCH_POSITIONS", 0)
-        per_gaussian = (self.chosen.bytes + positions) / patch_count
-        saved = len(sources) * per_gaussian - sketch_bytes
-        slope = self.search.slope_at(self.chosen)
-        decision = {"sketch_distortion": error, "bytes_saved": round(saved),
-                    "marginal_distortion_per_byte": slope, "dropped": error > slope * saved}
-        self.record["rate"]["sketch"] = decision
-        return decision["dropped"]
-
     def encoder_for(self, encoder: PatchEncoder) -> PatchEncoder:
         if self.allocated is not None:
-            return PatchEncoder(self.allocated, seed=encoder.seed, jobs=encoder.jobs)
+            return super().encoder_for(encoder)
         if encoder.config.groups_per_entry is None or self.predicted_count is None:
             return encoder
         # the codebooks the plan sized the file with, whatever count training ends with
@@ -441,7 +459,7 @@ class SizeTarget(Sizing):
         self.record["rate"]["trimmed"] = True
 
 
-class PresetPoint(SizeTarget):
+class PresetPoint(PrecisionSizing):
     """No target, without retraining, with ``config.allocation``: the preset as a point of the
     rate-distortion curve (DECISIONS D-33, D-34). Its codebook shapes set the bytes: the
     precision search's prediction of their option bytes with every Gaussian, the rate model
@@ -457,24 +475,17 @@ class PresetPoint(SizeTarget):
         search = self.precision_search(patch, weights, encoder, rows)
         preset = search.matching(encoder.config.entry_dims, encoder.config.stored_position_bits)
         chosen = search.for_bytes(preset.bytes)
-        self.predicted_count = self.allocated_count = len(patch)
         record = {"preset_bytes": round(preset.bytes), "preset_distortion": preset.distortion}
         if chosen is not None and chosen.distortion < preset.distortion:
-            self.allocated = chosen.patch_config(encoder.config)
-            self.search, self.chosen = search, chosen
-            record.update(options=chosen.describe(), predicted_distortion=chosen.distortion,
-                          predicted_distortions={a: o.distortion
-                                                 for a, o in chosen.options.items()})
+            record.update(self.adopt(search, chosen, encoder))
         record["seconds"] = round(time.perf_counter() - start, 2)
         self.record["rate"] = {"preset_point": True, "predicted_count": len(patch),
                                "precision": record}
         return len(patch)
 
-    def overflows(self, writer: SceneWriter, encoding: PatchEncoding) -> bool:
-        return False  # the bytes are a prediction, not a limit
 
 
-class QualityTarget(Sizing):
+class QualityTarget(PrecisionSizing):
     """``--target-psnr``: the smallest file whose close-up reaches ``config.target_psnr``.
 
     With retraining, or without ``config.allocation``, the knob is how many patch Gaussians
@@ -488,7 +499,6 @@ class QualityTarget(Sizing):
         self.target = float(config.target_psnr)
         self.judge = TargetJudge(original, up=config.up, antialiased=config.antialiased,
                                  device=device, cache=default_cache_dir())
-        self.allocated: PatchConfig | None = None
         self.allocated_psnr = math.nan
         """The close-up PSNR of the allocated point's file, every patch Gaussian kept."""
 
@@ -587,11 +597,6 @@ class QualityTarget(Sizing):
                           "verified": {str(i): round(v, 3) for i, v in sorted(verified.items())},
                           "seconds": round(time.perf_counter() - start, 2)}}
         return encoders[hi]
-
-    def encoder_for(self, encoder: PatchEncoder) -> PatchEncoder:
-        if self.allocated is None:
-            return encoder
-        return PatchEncoder(self.allocated, seed=encoder.seed, jobs=encoder.jobs)
 
     def fit(self, writer: SceneWriter, encoder: PatchEncoder, cloud: GaussianCloud,
             quantized: Quantized, importance: np.ndarray) -> np.ndarray:

@@ -40,9 +40,9 @@ class TilingConfig:
     (``--precision-search``, DECISIONS D-33): the preset's bytes spent by the precision search,
     without a sketch. One of :data:`PRECISION_SEARCHES`: ``"none"`` (the preset's own codebook
     shapes), ``"inner"`` (the merged coarser levels, DECISIONS D-35) or ``"all"``. The search's
-    fixed cost is paid per node searched: the coarser levels are a quarter of the nodes and the
-    first picture of every view, where it gained 1.8-3.5 dB at fewer bytes for 1.46x the build's
-    time; every node took 13.6x on guitar's leaves of 8,192 (docs/LOG.md 26.3, 28.2)."""
+    fixed cost is paid per node searched. The coarser levels are a quarter of the nodes and what
+    a viewer draws first and from afar: there it gained 1.8-3.5 dB at fewer bytes for 1.46x the
+    build's time; every node took 13.6x on guitar's leaves of 8,192 (docs/LOG.md 26.3, 28.2)."""
     workers: int = 2
     cluster: str | None = None
     seed: int = 0

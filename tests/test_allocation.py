@@ -438,7 +438,9 @@ def test_an_encode_made_again_takes_only_a_decisive_verdict_of_the_first(scene, 
 def test_a_gap_in_the_curve_at_the_aim_is_crossed_when_the_next_point_fits(shrink, gap):
     """The trials aim 1 % under the target; when the curve has no point between the one the
     last trial repeats and the aim's budget, and that trial landed more than three slack widths
-    under, the next point up is tried against the target itself. Files never exceed it."""
+    under, the next point up is tried against the target itself. Files never exceed it. Where
+    the next point is over the target, the gap is left to ``_fill_gap`` (here keeping the file
+    that fits), with that point as the one over."""
     import types
 
     from spcodec.encoder import sizing as sizing_module
@@ -464,10 +466,14 @@ def test_a_gap_in_the_curve_at_the_aim_is_crossed_when_the_next_point_fits(shrin
 
     preset, points = Point(low // 2), [Point(low), Point(high)]
     search = types.SimpleNamespace(
-        rescaled=lambda count: search, matching=lambda *args: preset,
+        rescaled=lambda count: search, matching=lambda *args: preset, curve=lambda: points,
         for_bytes=lambda budget: max((p for p in points if p.bytes <= budget),
                                      key=lambda p: p.bytes, default=None))
-    written = []
+    written, gaps = [], []
+
+    def fill_gap(self, every, data, over, *args):
+        gaps.append((every, over))
+        return every, 4, data
 
     def pruned_file(writer, encoder, patch, weights, count):
         written.append(real(encoder.config.entry_counts["bytes"]))
@@ -478,12 +484,15 @@ def test_a_gap_in_the_curve_at_the_aim_is_crossed_when_the_next_point_fits(shrin
     sizing.inherited, sizing.record["rate"] = search, {}
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(sizing_module, "pruned_file", pruned_file)
+        patch.setattr(sizing_module.SizeTarget, "_fill_gap", fill_gap)
         sizing.allocate(np.zeros(4), np.ones(4), None, PatchEncoder(config.patch), preset.bytes,
                         None, 4)
     landed = sizing.record["rate"]["predicted_bytes"]
     assert landed in written and landed <= target
-    crossed = high <= target / ratio and real(high) <= target
-    assert landed == (real(high) if crossed else real(low))
+    fits = real(high) <= target
+    assert landed == (real(high) if fits else real(low))
+    gap = not fits and real(low) < target * (1 - 3 * FIT_SLACK)
+    assert gaps == ([(points[0], points[1])] if gap else [])
 
 
 @settings(max_examples=50, deadline=None)

@@ -78,3 +78,35 @@ def test_the_file_that_renders_closest_is_kept(every, counts, scores):
     best = max(range(len(expected)), key=lambda i: scores[i])
     assert (chosen, count, data) == expected[best]
     assert [c["gaussians"] for c in record["candidates"]] == [n for _, n, _ in expected]
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(1, 2 * PATCH), st.floats(10.0, 60.0), st.floats(10.0, 60.0))
+def test_a_gap_in_the_curve_is_filled_by_the_next_point_pruned_when_it_renders_closer(
+        count, every_score, pruned_score):
+    """Above the preset's file, where the allocation that fits lands more than 3 % under the
+    target and the next one is over it, that next allocation pruned to the target competes on
+    renders with every Gaussian at the one that fits (``SizeTarget._fill_gap``)."""
+    config = sized(preset_config("balanced", EncoderConfig()), 10**6)
+    rendered: list[list[bytes]] = []
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(sizing_module, "plan_count",
+                      lambda *args, **kw: types.SimpleNamespace(count=count))
+        patch.setattr(sizing_module, "pruned_file", lambda writer, encoder, cloud, weights, n:
+                      types.SimpleNamespace(data=f"{n}".encode()))
+        patch.setattr(sizing_module.SizeTarget, "_render_psnr",
+                      lambda self, files: rendered.append(list(files)) or
+                      [every_score, pruned_score][:len(files)])
+        target = sizing_module.SizeTarget(config, None, "cpu")
+        record: dict = {}
+        chosen, kept, data = target._fill_gap(Point(1.0), b"every", Point(2.0), None,
+                                              PatchEncoder(config.patch), list(range(PATCH)),
+                                              None, record)
+    if count >= PATCH:  # the next point fits whole: nothing to prune, nothing rendered
+        assert (chosen, kept, data) == (Point(1.0), PATCH, b"every") and rendered == []
+        return
+    assert rendered == [[b"every", f"{count}".encode()]]
+    assert [c["gaussians"] for c in record["gap"]] == [PATCH, count]
+    expected = (Point(2.0), count, f"{count}".encode()) if pruned_score > every_score else \
+        (Point(1.0), PATCH, b"every")
+    assert (chosen, kept, data) == expected

@@ -39,8 +39,9 @@ def configure(p: argparse.ArgumentParser) -> None:
                    choices=PRECISION_SEARCHES, metavar="NODES",
                    help="make nodes their preset's point of the rate-distortion curve, as one file "
                    "is: better pictures at equal bytes, for the search's fixed cost in each node "
-                   "searched; NODES is none, inner (the merged coarser levels) or all (the "
-                   "flag alone) (default: %(default)s)")
+                   "searched; NODES is none, coarse (the levels two merges or more above the "
+                   "leaves), inner (every merged level) or all (the flag alone) "
+                   "(default: %(default)s)")
     p.add_argument("--workers", type=Bounded(int, 0), default=defaults.workers, metavar="N",
                    help="local worker processes, one thread each, %(type)s; 0 encodes in this "
                    "process (default: %(default)s)")

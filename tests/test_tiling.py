@@ -19,6 +19,7 @@ from spcodec.ply import read_ply, write_ply
 from spcodec.synthetic import make_scene
 from spcodec.tiling import TilingConfig, build_tileset
 from spcodec.tiling.build import FAIL_ONCE_ENV
+from spcodec.tiling.config import PRECISION_SEARCHES
 from spcodec.tiling.grouping import merge_level, pair_groups
 from spcodec.tiling.merge import MAX_OPACITY, covariances, merge_groups, weights
 from spcodec.tiling.partition import build_tree, input_identity, leaf_path, partition
@@ -411,30 +412,34 @@ def test_precision_search_makes_a_node_its_presets_point_and_redoes_it(small_ply
         build_tileset(small_ply, tmp_path / "both", TilingConfig(**whole, sketch=True,
                                                                  precision_search="all"))
     assert not (tmp_path / "both").exists()
-    with pytest.raises(UsageError, match="precision search must be one of none, inner, all, "
+    with pytest.raises(UsageError, match="precision search must be one of none, coarse, inner, all, "
                                          "got 'leaves'"):
         build_tileset(small_ply, tmp_path / "bad", TilingConfig(**whole, precision_search="leaves"))
     assert not (tmp_path / "bad").exists()
 
 
-def test_an_inner_precision_search_makes_only_the_merged_levels_points(small_ply, tmp_path):
-    """``precision_search="inner"``: the merged coarser levels are points of the curve, the
-    leaves keep the preset's own shapes (their files are those of a build without the search)."""
+@pytest.mark.parametrize("searched, least", [("coarse", 2), ("inner", 1)])
+def test_a_coarse_or_inner_precision_search_makes_only_those_levels_points(small_ply, tmp_path,
+                                                                           searched, least):
+    """``coarse``: the levels two merges or more above the leaves are points of the curve;
+    ``inner``: every merged level. The other nodes keep the preset's shapes (their files are
+    those of a build without the search)."""
     from spcodec.decoder import inspect
 
-    whole = dict(**SMALL, workers=0)
-    assert [TilingConfig(precision_search=p).searches(inner) for p in ("none", "inner", "all")
-            for inner in (False, True)] == [False, False, False, True, True, True]
+    assert [TilingConfig(precision_search=p).searches(h) for p in PRECISION_SEARCHES
+            for h in (0, 1, 2)] == [False] * 3 + [False, False, True] + [False, True, True] + \
+        [True] * 3
+    whole = dict(leaf_size=350, branching=2, workers=0)  # four leaves, two inner nodes, a root
     build_tileset(small_ply, tmp_path / "none", TilingConfig(**whole, precision_search="none"))
-    build_tileset(small_ply, tmp_path / "inner", TilingConfig(**whole, precision_search="inner"))
-    records = {p.stem: json.loads(p.read_text()) for p in (tmp_path / "inner" / "nodes").glob("*.json")}
-    inner = {i for i in records if any(j != i and j.startswith(i) for j in records)}
-    assert inner and len(inner) < len(records)
-    for node in node_files(tmp_path / "inner"):
-        searched = inspect(node).metadata["settings"]["allocation"] is not None
-        assert searched == (node.stem in inner)
+    build_tileset(small_ply, tmp_path / searched, TilingConfig(**whole, precision_search=searched))
+    ids = [node.stem for node in node_files(tmp_path / searched)]
+    height = {i: max(len(j) - len(i) for j in ids if j.startswith(i)) for i in ids}
+    assert sorted(height.values()) == [0, 0, 0, 0, 1, 1, 2]
+    for node in node_files(tmp_path / searched):
+        points = inspect(node).metadata["settings"]["allocation"] is not None
+        assert points == (height[node.stem] >= least)
         plain = (tmp_path / "none" / "nodes" / node.name).read_bytes()
-        assert (node.read_bytes() == plain) == (node.stem not in inner)
+        assert (node.read_bytes() == plain) == (not points)
 
 
 @pytest.mark.parametrize("module", ["spcodec", "tiling"])

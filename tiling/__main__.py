@@ -31,8 +31,9 @@ def parser() -> argparse.ArgumentParser:
                    choices=PRECISION_SEARCHES, metavar="NODES",
                    help="make nodes their preset's point of the rate-distortion curve, as one file "
                    "is: better pictures at equal bytes, for the search's fixed cost in each node "
-                   "searched; NODES is none, inner (the merged coarser levels) or all (the "
-                   "flag alone) (default: %(default)s)")
+                   "searched; NODES is none, coarse (the levels two merges or more above the "
+                   "leaves), inner (every merged level) or all (the flag alone) "
+                   "(default: %(default)s)")
     p.add_argument("--workers", type=int, default=defaults.workers,
                    help="local worker processes; 0 runs in this process")
     p.add_argument("--cluster", help="address of a running Dask scheduler (tcp://host:8786)")

@@ -8,7 +8,7 @@ from spcodec.errors import UsageError
 
 BRANCHINGS = (2, 4, 8)
 
-PRECISION_SEARCHES = ("none", "inner", "all")
+PRECISION_SEARCHES = ("none", "coarse", "inner", "all")
 """The nodes :attr:`TilingConfig.precision_search` may name."""
 
 
@@ -35,14 +35,16 @@ class TilingConfig:
     node's CPU where it found no cluster and, where it did, its files were worse at equal bytes
     (docs/LOG.md, issue 39). It can only take the preset's sketch away, never add one, and only
     from nodes that are not points of the curve (:attr:`precision_search`): a point builds none."""
-    precision_search: str = "inner"
+    precision_search: str = "coarse"
     """Which nodes are their preset's point of the rate-distortion curve, as a single file is
     (``--precision-search``, DECISIONS D-33): the preset's bytes spent by the precision search,
     without a sketch. One of :data:`PRECISION_SEARCHES`: ``"none"`` (the preset's own codebook
-    shapes), ``"inner"`` (the merged coarser levels, DECISIONS D-35) or ``"all"``. The search's
-    fixed cost is paid per node searched. The coarser levels are a quarter of the nodes and what
-    a viewer draws first and from afar: there it gained 1.8-3.5 dB at fewer bytes for 1.46x the
-    build's time; every node took 13.6x on guitar's leaves of 8,192 (docs/LOG.md 26.3, 28.2)."""
+    shapes), ``"coarse"`` (the levels at least two merges above the leaves, DECISIONS D-35),
+    ``"inner"`` (every merged level) or ``"all"``. The search's fixed cost is paid per node
+    searched, about 9 CPU s in a node of 19,532 (five times its encode): every inner node of
+    the 20 M tileset would take the build from 0.76x to about 1.6x a single file's time per
+    Gaussian, the coarse ones to about 1.0x. They are what a viewer draws first and from afar,
+    where it gained 1.8-3.5 dB at fewer bytes (docs/LOG.md 26.3, 28.2, 28.3)."""
     workers: int = 2
     cluster: str | None = None
     seed: int = 0
@@ -82,6 +84,7 @@ class TilingConfig:
                              "builds no sketch (DECISIONS D-33): drop --sketch or choose inner "
                              "or none")
 
-    def searches(self, inner: bool) -> bool:
-        """Whether a node (``inner``: a merged coarser level, else a leaf) is its preset's point."""
-        return self.precision_search == "all" or (inner and self.precision_search == "inner")
+    def searches(self, height: int) -> bool:
+        """Whether a node ``height`` merges above the leaves (0: a leaf) is its preset's point."""
+        least = {"none": None, "coarse": 2, "inner": 1, "all": 0}[self.precision_search]
+        return least is not None and height >= least

@@ -96,9 +96,13 @@ def build_tileset(input_path: str | os.PathLike, out_dir: str | os.PathLike,
 def jobs_of(parts: Partition, out: Path, config: TilingConfig) -> list[NodeJob]:
     """One job per node, every node after its children."""
     folder = str(out.resolve())  # workers may run elsewhere (another working folder)
+    nodes = parts.bottom_up()
+    height: dict[str, int] = {}  # merges above the leaves
+    for n in nodes:
+        height[n.id] = 1 + max((height[c] for c in n.children), default=-1)
     return [NodeJob(n.id, tuple(n.children), n.leaf_digest, folder, config.preset, config.seed,
-                    config.branching, config.sketch, config.searches(bool(n.children)))
-            for n in parts.bottom_up()]
+                    config.branching, config.sketch, config.searches(height[n.id]))
+            for n in nodes]
 
 
 def remove_stale_nodes(out: Path, parts: Partition) -> None:

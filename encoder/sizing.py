@@ -304,7 +304,7 @@ class SizeTarget(PrecisionSizing):
         other = full_bytes - preset.bytes  # positions, headers, the sketch: what stays as it is
         aim = self.target * (1 - FIT_SLACK)
         chosen, written, ratio, tried, data = None, None, 1.0, None, None
-        over: tuple[Allocation, int] | None = None  # the smallest trial over the target
+        over, over_size = None, 0  # the smallest trial over the target, and its size
         measured: list[tuple[float, int]] = []  # (predicted option bytes, file bytes) per trial
         for _ in range(ALLOCATION_TRIALS):
             # entropy predicts the index bytes to within the coder's context gains, which the
@@ -324,8 +324,8 @@ class SizeTarget(PrecisionSizing):
             size = trial.size
             if size <= self.target and (written is None or size > written):
                 chosen, written, data = candidate, size, trial.data
-            if size > self.target and (over is None or size < over[1]):
-                over = (candidate, size)
+            if size > self.target and (over is None or size < over_size):
+                over, over_size = candidate, size
             if self.target * (1 - 3 * FIT_SLACK) <= size <= self.target:
                 break
             measured.append((candidate.bytes, size))
@@ -339,21 +339,11 @@ class SizeTarget(PrecisionSizing):
                                                    pruned_count, record)
             size = None if data is None else len(data)
         elif written is not None and written < self.target * (1 - 3 * FIT_SLACK):
-            curve = search.curve()
-            for _ in range(ALLOCATION_TRIALS):  # up the curve while its points still fit
-                up = next((a for a in curve if a.bytes > chosen.bytes), None)
-                if over is not None or up is None or \
-                        written >= self.target * (1 - 3 * FIT_SLACK):
-                    break
-                trial = pruned_file(writer, PatchEncoder(up.patch_config(encoder.config),
-                                                         seed=encoder.seed, jobs=encoder.jobs),
-                                    patch, weights, len(patch))
-                if trial.size <= self.target:
-                    chosen, written, data = up, trial.size, trial.data
-                else:
-                    over = (up, trial.size)
+            if over is None:  # the trials stopped short of the gap: the curve's next points
+                chosen, written, data, over = self._up_the_curve(search, chosen, written, data,
+                                                                 writer, encoder, patch, weights)
             if over is not None and written < self.target * (1 - 3 * FIT_SLACK):
-                chosen, count, data = self._fill_gap(chosen, data, over[0], writer, encoder,
+                chosen, count, data = self._fill_gap(chosen, data, over, writer, encoder,
                                                      patch, weights, record)
             size = written if count == len(patch) else len(data)
         record["seconds"] = round(time.perf_counter() - start, 2)
@@ -422,6 +412,26 @@ class SizeTarget(PrecisionSizing):
         self.verdict = (scores[0], scores[-1]) if every is not None and \
             best in (0, len(candidates) - 1) else None
         return candidates[best]
+
+    def _up_the_curve(self, search: PrecisionSearch, chosen: Allocation, written: int, data: bytes,
+                      writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
+                      weights: np.ndarray) -> tuple[Allocation, int, bytes, Allocation | None]:
+        """The curve's points above ``chosen`` (whose file of ``written`` bytes is ``data``),
+        each written with every Gaussian while it fits and the file is more than 3 % under the
+        target: ``(chosen, written, data, over)``, ``over`` the first point whose file did not
+        fit (None: none was written, or the target is reached)."""
+        curve = search.curve()
+        for _ in range(ALLOCATION_TRIALS):
+            up = next((a for a in curve if a.bytes > chosen.bytes), None)
+            if up is None or written >= self.target * (1 - 3 * FIT_SLACK):
+                break
+            trial = pruned_file(writer, PatchEncoder(up.patch_config(encoder.config),
+                                                     seed=encoder.seed, jobs=encoder.jobs),
+                                patch, weights, len(patch))
+            if trial.size > self.target:
+                return chosen, written, data, up
+            chosen, written, data = up, trial.size, trial.data
+        return chosen, written, data, None
 
     def _fill_gap(self, every: Allocation, data: bytes, over: Allocation, writer: SceneWriter,
                   encoder: PatchEncoder, patch: GaussianCloud, weights: np.ndarray, record: dict

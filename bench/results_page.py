@@ -146,8 +146,8 @@ STILL_MISSED = (
     ("A 20 M-Gaussian tileset under 4 GB at 1.5x the single-file time per Gaussian",
      "met: run whole (1,365 nodes, 380 MB), peak 1,887 MB over all processes, 142 CPU µs a "
      "Gaussian with no node searched, 0.76x the single file a user encodes (the preset's point, "
-     "187 µs); with the default's coarse levels searched (D-35) about 182 µs, 0.97x, estimated "
-     "from the searched nodes' own CPU; every inner node searched would be about 1.62x", "28.3"),
+     "187 µs); with the default's coarse levels searched (D-35) 181 µs, 0.97x; every inner node "
+     "searched would be about 1.62x", "28.3"),
     ("No-retrain targeted encode at most 2x the balanced encode's time",
      "met at guitar 0.75x (1.77x); missed at seven other points, 2.29-3.74x the old balanced "
      "encode unloaded on guitar, fourth_st, kacytran and donut (7-19 % less CPU than bb02d5d, "
@@ -167,7 +167,7 @@ STILL_MISSED = (
     ("A tileset's 1/16 level as good as splat-transform's decimation (third-party renderer)",
      "met on guitar (+0.16 / +0.21 dB at 67 % of its bytes) and donut (+0.34 / +0.51 at 77 %) "
      "at the defaults: the coarse levels are points of the curve (D-35), 1.04x guitar's and "
-     "1.13x the 1 M tileset's build in CPU, about 1.28x the 20 M one's; before, donut was 0.04 "
+     "1.13x the 1 M tileset's build in CPU, about 1.3x the 20 M one's; before, donut was 0.04 "
      "dB short at the orbit, a 2,852-Gaussian node's encode moving it by 0.3-0.8 dB", "28.2"),
     ("Transparent preset smaller than SPZ and as good on biker",
      "missed: biker is SPZ's own output, which SPZ re-encodes exactly", "14.4"),

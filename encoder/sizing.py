@@ -304,7 +304,7 @@ class SizeTarget(PrecisionSizing):
         other = full_bytes - preset.bytes  # positions, headers, the sketch: what stays as it is
         aim = self.target * (1 - FIT_SLACK)
         chosen, written, ratio, tried, data = None, None, 1.0, None, None
-        over, over_size = None, 0  # the smallest trial over the target, and its size
+        over: tuple[Allocation, int] | None = None  # the smallest trial over the target, its size
         measured: list[tuple[float, int]] = []  # (predicted option bytes, file bytes) per trial
         for _ in range(ALLOCATION_TRIALS):
             # entropy predicts the index bytes to within the coder's context gains, which the
@@ -318,14 +318,12 @@ class SizeTarget(PrecisionSizing):
                     (full_bytes <= self.target and candidate.distortion >= preset.distortion):
                 break
             tried = candidate
-            trial = pruned_file(writer, PatchEncoder(candidate.patch_config(encoder.config),
-                                                     seed=encoder.seed, jobs=encoder.jobs),
-                                patch, weights, len(patch))
+            trial = pruned_file(writer, _coder(candidate, encoder), patch, weights, len(patch))
             size = trial.size
             if size <= self.target and (written is None or size > written):
                 chosen, written, data = candidate, size, trial.data
-            if size > self.target and (over is None or size < over_size):
-                over, over_size = candidate, size
+            if size > self.target and (over is None or size < over[1]):
+                over = (candidate, size)
             if self.target * (1 - 3 * FIT_SLACK) <= size <= self.target:
                 break
             measured.append((candidate.bytes, size))
@@ -343,7 +341,7 @@ class SizeTarget(PrecisionSizing):
                 chosen, written, data, over = self._up_the_curve(search, chosen, written, data,
                                                                  writer, encoder, patch, weights)
             if over is not None and written < self.target * (1 - 3 * FIT_SLACK):
-                chosen, count, data = self._fill_gap(chosen, data, over, writer, encoder,
+                chosen, count, data = self._fill_gap(chosen, data, *over, writer, encoder,
                                                      patch, weights, record)
             size = written if count == len(patch) else len(data)
         record["seconds"] = round(time.perf_counter() - start, 2)
@@ -386,16 +384,11 @@ class SizeTarget(PrecisionSizing):
             between = search.for_bytes(budget / share)
             if between is None or between == preset or any(between == c[0] for c in candidates):
                 continue
-            coder = PatchEncoder(between.patch_config(encoder.config), seed=encoder.seed,
-                                 jobs=encoder.jobs)
-            nearest: dict[int, bytes] = {}
-            plan = plan_count(self.target, len(patch),
-                              _trial(writer, coder, patch, weights, self.target, nearest),
-                              FIT_SLACK)
-            if pruned_count < plan.count < len(patch):
-                candidates.append((between, plan.count, nearest[plan.count]
-                                   if plan.count in nearest else
-                                   pruned_file(writer, coder, patch, weights, plan.count).data))
+            count, file = self._pruned_to_target(
+                writer, _coder(between, encoder), patch, weights,
+                keep=lambda n: pruned_count < n < len(patch))
+            if file is not None:
+                candidates.append((between, count, file))
         if not candidates:
             return None, pruned_count, None
         planned = self.planned
@@ -415,50 +408,61 @@ class SizeTarget(PrecisionSizing):
 
     def _up_the_curve(self, search: PrecisionSearch, chosen: Allocation, written: int, data: bytes,
                       writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
-                      weights: np.ndarray) -> tuple[Allocation, int, bytes, Allocation | None]:
+                      weights: np.ndarray
+                      ) -> tuple[Allocation, int, bytes, tuple[Allocation, int] | None]:
         """The curve's points above ``chosen`` (whose file of ``written`` bytes is ``data``),
         each written with every Gaussian while it fits and the file is more than 3 % under the
         target: ``(chosen, written, data, over)``, ``over`` the first point whose file did not
-        fit (None: none was written, or the target is reached)."""
+        fit and that file's size (None: none was written, or the target is reached)."""
         curve = search.curve()
         for _ in range(ALLOCATION_TRIALS):
             up = next((a for a in curve if a.bytes > chosen.bytes), None)
             if up is None or written >= self.target * (1 - 3 * FIT_SLACK):
                 break
-            trial = pruned_file(writer, PatchEncoder(up.patch_config(encoder.config),
-                                                     seed=encoder.seed, jobs=encoder.jobs),
-                                patch, weights, len(patch))
+            trial = pruned_file(writer, _coder(up, encoder), patch, weights, len(patch))
             if trial.size > self.target:
-                return chosen, written, data, up
+                return chosen, written, data, (up, trial.size)
             chosen, written, data = up, trial.size, trial.data
         return chosen, written, data, None
 
-    def _fill_gap(self, every: Allocation, data: bytes, over: Allocation, writer: SceneWriter,
-                  encoder: PatchEncoder, patch: GaussianCloud, weights: np.ndarray, record: dict
-                  ) -> tuple[Allocation, int, bytes]:
+    def _fill_gap(self, every: Allocation, data: bytes, over: Allocation, over_size: int,
+                  writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
+                  weights: np.ndarray, record: dict) -> tuple[Allocation, int, bytes]:
         """Above the preset's file, a gap in the curve at the target: the allocation that fits,
         every Gaussian kept (``every``, its file ``data``), lands more than 3 % under it and the
-        next one tried (``over``) over it. Also the latter pruned to the target, and whichever
-        of the two renders closer to the input (:meth:`_render_psnr`) is kept: biker's colours
-        step from a 256-entry vector codebook to their 136 exact values, 8 % more bytes and 6
-        dB, with nothing on the curve between (docs/LOG.md 28.4). Returns the allocation, how
-        many it keeps and its file."""
-        coder = PatchEncoder(over.patch_config(encoder.config), seed=encoder.seed,
-                             jobs=encoder.jobs)
-        nearest: dict[int, bytes] = {}
-        plan = plan_count(self.target, len(patch),
-                          _trial(writer, coder, patch, weights, self.target, nearest), FIT_SLACK)
-        if plan.count >= len(patch):
+        next one tried (``over``, whose file of every Gaussian took ``over_size`` bytes) over it.
+        Also the latter pruned to the target, and whichever of the two renders closer to the
+        input (:meth:`_render_psnr`) is kept: biker's colours step from a 256-entry vector
+        codebook to their 136 exact values, 8 % more bytes and 6 dB, with nothing on the curve
+        between (docs/LOG.md 28.4). Returns the allocation, how many it keeps and its file."""
+        count, pruned = self._pruned_to_target(writer, _coder(over, encoder), patch, weights,
+                                               keep=lambda n: n < len(patch),
+                                               full_size=over_size)
+        if pruned is None:
             return every, len(patch), data
-        pruned = nearest[plan.count] if plan.count in nearest else \
-            pruned_file(writer, coder, patch, weights, plan.count).data
         scores = self._render_psnr([data, pruned])
         record["gap"] = [
-            {"options": allocation.describe(), "gaussians": count, "bytes": len(file),
+            {"options": allocation.describe(), "gaussians": kept, "bytes": len(file),
              "training_view_psnr": round(score, 3)}
-            for allocation, count, file, score in ((every, len(patch), data, scores[0]),
-                                                   (over, plan.count, pruned, scores[1]))]
-        return (over, plan.count, pruned) if scores[1] > scores[0] else (every, len(patch), data)
+            for allocation, kept, file, score in ((every, len(patch), data, scores[0]),
+                                                  (over, count, pruned, scores[1]))]
+        return (over, count, pruned) if scores[1] > scores[0] else (every, len(patch), data)
+
+    def _pruned_to_target(self, writer: SceneWriter, coder: PatchEncoder, patch: GaussianCloud,
+                          weights: np.ndarray, keep: Callable[[int], bool],
+                          full_size: int | None = None) -> tuple[int, bytes | None]:
+        """How many of the most important patch Gaussians ``coder`` fits in the target
+        (:func:`plan_count` on real writes) and, where ``keep`` accepts that count, their file
+        (None otherwise). ``full_size``: the file of every Gaussian, when already written."""
+        nearest: dict[int, bytes] = {}
+        sized = _trial(writer, coder, patch, weights, self.target, nearest)
+        size = sized if full_size is None else \
+            (lambda n: full_size if n == len(patch) else sized(n))
+        count = plan_count(self.target, len(patch), size, FIT_SLACK).count
+        if not keep(count):
+            return count, None
+        return count, nearest[count] if count in nearest else \
+            pruned_file(writer, coder, patch, weights, count).data
 
     def _render_psnr(self, files: list[bytes]) -> list[float]:
         """Mean PSNR (dB) of each file against the input over the search's training views,
@@ -542,7 +546,6 @@ class PresetPoint(PrecisionSizing):
         return len(patch)
 
 
-
 class QualityTarget(PrecisionSizing):
     """``--target-psnr``: the smallest file whose close-up reaches ``config.target_psnr``.
 
@@ -616,8 +619,7 @@ class QualityTarget(PrecisionSizing):
         point reaches."""
         start = time.perf_counter()
         curve = self.precision_search(patch, weights, encoder, rows).curve()
-        encoders = [PatchEncoder(point.patch_config(encoder.config), seed=encoder.seed,
-                                 jobs=encoder.jobs) for point in curve]
+        encoders = [_coder(point, encoder) for point in curve]
         judged: dict[int, float] = {}
         files: dict[int, bytes] = {}
 
@@ -726,6 +728,12 @@ def _trial(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
             nearest[count] = data
         return len(data)
     return size
+
+
+def _coder(allocation: Allocation, encoder: PatchEncoder) -> PatchEncoder:
+    """The patch encoder of ``allocation``, with ``encoder``'s seed and jobs."""
+    return PatchEncoder(allocation.patch_config(encoder.config), seed=encoder.seed,
+                        jobs=encoder.jobs)
 
 
 def pruned_file(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,

@@ -86,12 +86,18 @@ def test_a_gap_in_the_curve_is_filled_by_the_next_point_pruned_when_it_renders_c
         count, every_score, pruned_score):
     """Above the preset's file, where the allocation that fits lands more than 3 % under the
     target and the next one is over it, that next allocation pruned to the target competes on
-    renders with every Gaussian at the one that fits (``SizeTarget._fill_gap``)."""
+    renders with every Gaussian at the one that fits (``SizeTarget._fill_gap``). The next
+    allocation's file of every Gaussian, already written, is not written again."""
     config = sized(preset_config("balanced", EncoderConfig()), 10**6)
     rendered: list[list[bytes]] = []
+    full_sizes: list[int] = []
+
+    def plan_count(target, patch_count, size, tolerance):
+        full_sizes.append(size(patch_count))
+        return types.SimpleNamespace(count=count)
+
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(sizing_module, "plan_count",
-                      lambda *args, **kw: types.SimpleNamespace(count=count))
+        patch.setattr(sizing_module, "plan_count", plan_count)
         patch.setattr(sizing_module, "pruned_file", lambda writer, encoder, cloud, weights, n:
                       types.SimpleNamespace(data=f"{n}".encode()))
         patch.setattr(sizing_module.SizeTarget, "_render_psnr",
@@ -99,9 +105,10 @@ def test_a_gap_in_the_curve_is_filled_by_the_next_point_pruned_when_it_renders_c
                       [every_score, pruned_score][:len(files)])
         target = sizing_module.SizeTarget(config, None, "cpu")
         record: dict = {}
-        chosen, kept, data = target._fill_gap(Point(1.0), b"every", Point(2.0), None,
+        chosen, kept, data = target._fill_gap(Point(1.0), b"every", Point(2.0), 12_345, None,
                                               PatchEncoder(config.patch), list(range(PATCH)),
                                               None, record)
+    assert full_sizes == [12_345]
     if count >= PATCH:  # the next point fits whole: nothing to prune, nothing rendered
         assert (chosen, kept, data) == (Point(1.0), PATCH, b"every") and rendered == []
         return

@@ -8,8 +8,9 @@ from spcodec.errors import UsageError
 
 BRANCHINGS = (2, 4, 8)
 
-PRECISION_SEARCHES = ("none", "coarse", "inner", "all")
-"""The nodes :attr:`TilingConfig.precision_search` may name."""
+PRECISION_SEARCHES = {"none": None, "coarse": 2, "inner": 1, "all": 0}
+"""The nodes :attr:`TilingConfig.precision_search` may name, and how many merges above the
+leaves a node must be to be searched under each (None: never)."""
 
 
 @dataclass(frozen=True)
@@ -81,10 +82,10 @@ class TilingConfig:
                              f"got {self.precision_search!r}")
         if self.sketch and self.precision_search == "all":
             raise UsageError("--precision-search all makes every node its preset's point, which "
-                             "builds no sketch (DECISIONS D-33): drop --sketch or choose inner "
-                             "or none")
+                             "builds no sketch (DECISIONS D-33): drop --sketch or choose "
+                             "another")
 
     def searches(self, height: int) -> bool:
         """Whether a node ``height`` merges above the leaves (0: a leaf) is its preset's point."""
-        least = {"none": None, "coarse": 2, "inner": 1, "all": 0}[self.precision_search]
+        least = PRECISION_SEARCHES[self.precision_search]
         return least is not None and height >= least

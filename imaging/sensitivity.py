@@ -25,7 +25,6 @@ from spcodec.cloud import GaussianCloud
 from .cameras import Camera
 from .render import GaussianParams, RenderSettings, picture, render
 
-
 PARTS = ("means", "scales", "quats", "opacities", "sh")
 """The parameters :class:`Sensitivity` holds, in the order :meth:`Sensitivity.mse` sums them."""
 

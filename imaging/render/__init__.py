@@ -21,6 +21,7 @@ __all__ = [
     "GaussianParams",
     "RenderResult",
     "RenderSettings",
+    "picture",
     "render",
     "render_image",
     "resolve_backend",

@@ -622,3 +622,22 @@ def test_a_tiled_copy_of_a_real_scene(tmp_path):
     summary = build_tileset(path, tmp_path / "out", TilingConfig(leaf_size=3000, workers=0))
     assert summary.leaves >= 4 and summary.input_gaussians == 12000
     check_tileset(tmp_path / "out", 12000)
+
+
+def test_nodes_built_in_this_process_run_torch_on_one_thread(monkeypatch):
+    # as each worker does: the encoder's own task threads, not torch's, use the cores
+    import torch
+
+    from spcodec.tiling import jobs
+
+    seen = []
+    monkeypatch.setattr(jobs, "build_node",
+                        lambda job, children: seen.append(torch.get_num_threads()) or {})
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        work = [type("Job", (), {"id": str(k), "children": []})() for k in range(3)]
+        assert set(jobs.run_nodes(work, None, retries=0)) == {"0", "1", "2"}
+        assert seen == [1, 1, 1] and torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)

@@ -133,12 +133,21 @@ def run_nodes(jobs: list[NodeJob], client: Client | None, retries: int,
 
 
 def run_here(jobs: list[NodeJob], stage: Stage) -> dict[str, dict]:
-    """In this process, one node after another (no engine, no retries)."""
-    records: dict[str, dict] = {}
-    for job in jobs:
-        records[job.id] = build_node(job, [records[c] for c in job.children])
-        stage.update()
-    return records
+    """In this process, one node after another (no engine, no retries), torch on one thread
+    as in a worker (:func:`node_task`), restored afterwards: on torch's default threads a
+    searched node took 55 s instead of 6 on the loaded 2-core machine (docs/LOG.md 28)."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        records: dict[str, dict] = {}
+        for job in jobs:
+            records[job.id] = build_node(job, [records[c] for c in job.children])
+            stage.update()
+        return records
+    finally:
+        torch.set_num_threads(threads)
 
 
 def run_on_dask(jobs: list[NodeJob], client: Client, retries: int,

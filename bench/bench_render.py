@@ -3,6 +3,14 @@
     python bench/bench_render.py                      # default scenes, 256 and 400 px
     python bench/bench_render.py --threads 1 --reps 7
     python bench/bench_render.py --backward autograd  # the blend without the replaying backward
+    python bench/bench_render.py --drawing-tiles --scenes kacytran guitar donut fourth_st biker \
+        --threads 1
+
+``--drawing-tiles`` times a pass that only draws (no gradients) at both of
+``binning.DRAWING_TILES`` over the views such passes render (the precision search's training
+views, a quality target's close-ups), with each view's ratio of small-tile to large-tile pairs,
+and fits the ratio above which the large tile is faster, holding each scene out in turn: the
+measurement behind ``binning.PAIR_RATIO``.
 
 Every case runs in its own subprocess so that its peak resident memory (``ru_maxrss``) is its
 own; the table shows the peak and the part of it added by rendering (peak minus the resident
@@ -34,6 +42,8 @@ SCENES = {
     "donut": DATA / "v3dg_donut_mipsplatting" / "fused.ply",
     "fourth_st": DATA / "pdal_fourth_st_spz" / "fourth_st_inria.ply",
     "biker": DATA / "playcanvas_biker_guitar" / "biker_from_spz_inria.ply",
+    "guitar": DATA / "playcanvas_biker_guitar" / "guitar_inria.ply",
+    "kacytran": DATA / "kacytran_try_sh3" / "point_cloud_iteration_7000.ply",
 }
 
 
@@ -115,6 +125,82 @@ def run_case(scene: str, size: int, reps: int, backend: str, backward: str,
     }
 
 
+def drawing_views(scene: str, per_group: int = 3) -> list[dict]:
+    """Per view of ``scene`` a pass that only draws might render (the precision search's
+    training views at its two framings, the quality target's close-ups at 400 and 800 px):
+    its pixel boxes' tile pairs and the seconds of a drawing pass at each of the two tiles
+    (best of two after a warm-up), in this process."""
+    import torch
+
+    import spcodec
+    from spcodec.encoder.allocation import training_framings
+    from spcodec.encoder.config import AllocationConfig, EncoderConfig
+    from spcodec.encoder.qualitycontrol import CloseupJudge
+    from spcodec.imaging.render import GaussianParams, RenderSettings, render_image
+    from spcodec.imaging.render.binning import DRAWING_TILES, tile_pairs
+    from spcodec.imaging.render.projection import project
+
+    cloud = spcodec.read_ply(SCENES[scene])
+    config = EncoderConfig(up=SCENE_UP.get(scene, "-y"))
+    params = GaussianParams.from_cloud(cloud, torch.device("cpu"))
+    groups = {f"training {name}": cameras for name, cameras
+              in training_framings(cloud, config, AllocationConfig()).items()}
+    for size in (400, 800):
+        groups[f"close-up {size}"] = CloseupJudge(cloud, up=config.up, resolution=size,
+                                                  device="cpu").cameras
+    rows = []
+    for group, cameras in groups.items():
+        for camera in cameras[:per_group]:
+            with torch.no_grad():
+                boxes = project(params, camera, RenderSettings()).pixel_boxes
+            row = {"scene": scene, "group": group,
+                   "ratio": tile_pairs(boxes, DRAWING_TILES[0]) / tile_pairs(boxes, DRAWING_TILES[1])}
+            for tile in DRAWING_TILES:
+                settings = RenderSettings(tile_size=tile)
+                render_image(params, camera, settings)  # warm-up
+                row[tile] = min(_seconds(render_image, params, camera, settings)
+                                for _ in range(2))
+            rows.append(row)
+    return rows
+
+
+SCENE_UP = {"donut": "+z"}
+"""Scenes whose up axis is not the INRIA default."""
+
+
+def _seconds(fn, *args) -> float:
+    """Wall seconds of ``fn(*args)``."""
+    start = time.perf_counter()
+    fn(*args)
+    return time.perf_counter() - start
+
+
+def print_drawing_views(rows: list[dict]) -> None:
+    """The views by pair ratio; each threshold fitted on all scenes but one, and what it costs
+    that one over the faster tile of each view, beside each tile alone."""
+    from spcodec.imaging.render.binning import DRAWING_TILES
+
+    small, large = DRAWING_TILES
+    print(f"| scene | views | pair ratio | tile {small} s | tile {large} s |\n|---|---|---|---|---|")
+    for r in sorted(rows, key=lambda r: r["ratio"]):
+        print(f"| {r['scene']} | {r['group']} | {r['ratio']:.2f} | {r[small]:.3f} | "
+              f"{r[large]:.3f} |")
+
+    def cost(part: list[dict], threshold: float) -> float:
+        return statistics.mean((r[large] if r["ratio"] > threshold else r[small])
+                               / min(r[small], r[large]) for r in part)
+
+    thresholds = [1.5 + 0.05 * k for k in range(51)]
+    print("\n| held out | threshold fitted on the others | its cost | "
+          f"tile {small} alone | tile {large} alone |\n|---|---|---|---|---|")
+    for scene in sorted({r["scene"] for r in rows}):
+        fit = [r for r in rows if r["scene"] != scene]
+        test = [r for r in rows if r["scene"] == scene]
+        best = min(thresholds, key=lambda t: cost(fit, t))
+        print(f"| {scene} | {best:.2f} | {cost(test, best):.3f} | {cost(test, 99.0):.3f} | "
+              f"{cost(test, 0.0):.3f} |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", nargs="+", default=["donut", "fourth_st"],
@@ -127,8 +213,18 @@ def main() -> None:
     parser.add_argument("--backward", choices=["replay", "autograd"], default="replay",
                         help="torch backend: hand-written replaying blend backward or autograd")
     parser.add_argument("--tile-size", type=int, default=None)
+    parser.add_argument("--drawing-tiles", action="store_true",
+                        help="time drawing passes at both drawing tiles, per view (see above)")
     parser.add_argument("--case", nargs=2, metavar=("SCENE", "SIZE"), help=argparse.SUPPRESS)
     args = parser.parse_args()
+
+    if args.drawing_tiles:
+        import torch
+
+        if args.threads:
+            torch.set_num_threads(args.threads)
+        print_drawing_views([row for scene in args.scenes for row in drawing_views(scene)])
+        return
 
     if args.case:  # child process: one measurement, JSON on stdout
         if args.threads:

@@ -26,7 +26,7 @@ from spcodec.cloud import GaussianCloud
 
 from .cameras import Camera
 from .render import GaussianParams, RenderSettings
-from .render.binning import bin_gaussians
+from .render.binning import TRAINING_TILE, bin_gaussians
 from .render.composite import BlendConfig, blend
 from .render.projection import project
 from .views import DEFAULT_UP, ViewSamplingWarning, sample_views
@@ -56,7 +56,8 @@ def blend_weights(scene: GaussianCloud | GaussianParams, cameras: Sequence[Camer
             if len(proj.ids) == 0:
                 continue
             bins = bin_gaussians(proj.pixel_boxes, proj.depths, proj.means2d, proj.conics,
-                                 proj.extents, camera.width, camera.height, settings.tile_size)
+                                 proj.extents, camera.width, camera.height,
+                                 settings.tile_size or TRAINING_TILE)
             ones = torch.ones_like(proj.colors).requires_grad_(True)
             with torch.enable_grad():
                 image, _ = blend(proj.means2d, proj.conics, proj.opacities, ones, background,

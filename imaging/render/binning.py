@@ -57,6 +57,42 @@ _SPAN_MARGIN = 1e-2
 """Pixels added on both sides of every row's span (float32 rounding of the span's terms)."""
 
 
+TRAINING_TILE = 4
+"""The tile of a pass that keeps gradients: its replayed backward does several times the
+forward's work per (pixel, Gaussian) evaluation, so it pays to waste fewer of them (8 took
+13-58 % longer forward and backward on five scenes at 256 and 800 pixels; docs/LOG.md 29.1)."""
+
+DRAWING_TILES = (4, 8)
+"""The tiles a pass that only draws chooses between (:func:`choose_tile`)."""
+
+PAIR_RATIO = 3.0
+"""A drawing pass takes 8-pixel tiles where its Gaussians' pixel boxes meet more than this
+many times as many 4-pixel tiles as 8-pixel ones (about 1 for footprints under a tile, 4 for
+footprints many tiles wide: then the pairs to list, sort and gather outweigh the pixels
+evaluated in vain). Over 60 views of five scenes (training views at 256 pixels, close-ups at
+400 and 800) the faster tile changed between 2.7 and 3.0; fitted on four scenes, the
+threshold cost the fifth at most 0.8 % over the faster tile of each view, where 8 alone cost up
+to 27 % and 4 alone up to 84 % (``bench_render.py --drawing-tiles``; docs/LOG.md 29.1)."""
+
+
+def tile_pairs(pixel_boxes: torch.Tensor, tile: int) -> int:
+    """How many (tile, Gaussian) pairs the pixel boxes ``(M, 4)`` (col0, col1, row0, row1,
+    inclusive) meet at a tile side of ``tile`` (an upper bound of the binned pairs)."""
+    boxes = pixel_boxes.to(torch.int64) // tile
+    return int(((boxes[:, 1] - boxes[:, 0] + 1) * (boxes[:, 3] - boxes[:, 2] + 1)).sum())
+
+
+def choose_tile(pixel_boxes: torch.Tensor, gradients: bool) -> int:
+    """The tile side for a pass over these pixel boxes: :data:`TRAINING_TILE` for one that keeps
+    gradients; for one that only draws, the larger of :data:`DRAWING_TILES` where the boxes
+    meet more than :data:`PAIR_RATIO` times as many small tiles as large ones."""
+    if gradients or len(pixel_boxes) == 0:
+        return TRAINING_TILE
+    small, large = DRAWING_TILES
+    pairs_small, pairs_large = tile_pairs(pixel_boxes, small), tile_pairs(pixel_boxes, large)
+    return large if pairs_small > PAIR_RATIO * pairs_large else small
+
+
 def bin_gaussians(pixel_boxes: torch.Tensor, depths: torch.Tensor, means2d: torch.Tensor,
                   conics: torch.Tensor, extents: torch.Tensor, width: int, height: int,
                   tile: int) -> TileBins:

@@ -43,10 +43,11 @@ class RenderSettings:
     sh_degree: int | None = None
     """Render with at most this SH degree (None: the scene's own degree)."""
     max_alpha: float = MAX_ALPHA
-    tile_size: int = 4
-    """Square screen tiles (pixels per side) used to bin Gaussians in the torch renderer. Small
-    tiles waste fewer (pixel, Gaussian) evaluations on the CPU, where there is no warp to fill:
-    4 beat 2, 8 and 16 on 45k-131k Gaussian scenes from 256 to 800 pixels (bench_render.py)."""
+    tile_size: int | None = None
+    """Square screen tiles (pixels per side) used to bin Gaussians in the torch renderer; None
+    picks per pass and view (:func:`.binning.choose_tile`). Small tiles waste fewer (pixel,
+    Gaussian) evaluations on the CPU, where there is no warp to fill; large ones make fewer
+    (tile, Gaussian) pairs to list and sort, which matters where footprints are large."""
     chunk_size: int = 32
     """Gaussians per tile blended in one vectorized step (transmittance carries across steps)."""
     batch_elements: int = 1 << 22
@@ -55,7 +56,8 @@ class RenderSettings:
     def __post_init__(self) -> None:
         if len(self.background) != 3:
             raise ValueError("background must have 3 components")
-        if self.tile_size < 1 or self.chunk_size < 1 or self.batch_elements < 1:
+        if (self.tile_size is not None and self.tile_size < 1) or self.chunk_size < 1 \
+                or self.batch_elements < 1:
             raise ValueError("tile_size, chunk_size and batch_elements must be positive")
         if not 0.0 < self.max_alpha < 1.0:
             raise ValueError("max_alpha must lie in (0, 1)")

@@ -7,7 +7,7 @@ from typing import Literal
 import torch
 
 from ..cameras import Camera
-from .binning import bin_gaussians
+from .binning import bin_gaussians, choose_tile
 from .composite import BlendConfig, blend, blend_autograd
 from .params import GaussianParams
 from .projection import project
@@ -30,9 +30,10 @@ def render_torch(params: GaussianParams, camera: Camera, settings: RenderSetting
         means2d = retain_means2d_grad(
             proj.means2d.new_zeros(n, 2).index_copy(0, proj.ids, proj.means2d))
         drawn = means2d[proj.ids]
+    gradients = torch.is_grad_enabled() and any(t.requires_grad for t in params.tensors())
+    tile = settings.tile_size or choose_tile(proj.pixel_boxes, gradients)
     bins = bin_gaussians(proj.pixel_boxes, proj.depths, proj.means2d.detach(),
-                         proj.conics.detach(), proj.extents, camera.width, camera.height,
-                         settings.tile_size)
+                         proj.conics.detach(), proj.extents, camera.width, camera.height, tile)
     background = torch.tensor(settings.background, dtype=params.means.dtype,
                               device=params.device)
     config = BlendConfig(settings.max_alpha, settings.chunk_size, settings.batch_elements)

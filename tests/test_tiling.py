@@ -458,7 +458,6 @@ def test_both_clis_pass_the_sketch_setting(module, flag, expected, scene_ply, tm
         raise UsageError("stopped after reading the settings")
 
     monkeypatch.setattr(tiling, "build_tileset", build)
-    monkeypatch.setattr(tiling_main, "build_tileset", build)
     args = [str(scene_ply), "-o", str(tmp_path / "out"), "--workers", "0", *flag]
     assert (spcodec(["tile", *args]) if module == "spcodec" else tiling_main.main(args)) == 2
     assert [config.sketch for config in seen] == [expected]

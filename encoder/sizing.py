@@ -150,7 +150,8 @@ class Sizing:
         config = self.config.allocation
         scene = self.original if self.original is not None and rows is not None else patch
         if self.sensitivity is None or self.sensitivity_of is not scene:
-            # its forward passes are the reference renders at the same framings
+            # its forward passes are the reference renders at the same framings (a drawing
+            # pass differs from them by float rounding only, D-36)
             self.sensitivity, pictures = patch_sensitivity(scene, self.config, config,
                                                            self.device)
             self.sensitivity_of, self.renders = scene, (scene, pictures)

@@ -75,7 +75,8 @@ class BlendConfig:
 class _Batch:
     """A batch of tiles: their ids, pixel centres (n, P), the chunk length of its steps, the
     tiles' centres (n, 2) and the basis ``(1, u, v, u^2, u v, v^2)`` (P, 6) of the pixel
-    centres' offsets ``(u, v)`` from their tile's centre (the same for every tile)."""
+    centres' offsets ``(u, v)`` from their tile's centre (the same for every tile), which a
+    drawing pass's exponents and the backward's moments both use."""
 
     tiles: torch.Tensor
     px: torch.Tensor
@@ -372,13 +373,10 @@ def _blend_backward(table: torch.Tensor, bins: TileBins, config: BlendConfig,
     grad = torch.zeros_like(table)
     for batch in _batches(bins, pixels, config, table.device, table.dtype):
         g_batch, rest = g_tiles[batch.tiles], rest_tiles[batch.tiles]
-        ox, oy = bins.tile_origins(batch.tiles)
-        half = bins.tile / 2.0
-        centres = torch.stack([ox, oy], dim=1).to(table.dtype) + half  # (n, 2)
-        lx, ly = batch.px - centres[:, :1], batch.py - centres[:, 1:]
+        centres = batch.centres
         # (n, 9, P): moment features in tile-local coordinates, then the image gradient
-        lhs = torch.stack([torch.ones_like(lx), lx, ly, lx * lx, lx * ly, ly * ly,
-                           g_batch[:, :, 0], g_batch[:, :, 1], g_batch[:, :, 2]], dim=1)
+        lhs = torch.cat([batch.basis.T.expand(len(batch.tiles), -1, -1),
+                         g_batch.transpose(1, 2)], dim=1)
         prefix = table.new_zeros(len(batch.tiles), pixels)
         for rows, frag in _steps(table, bins, batch, config, _fragments_fast):
             g_rows, lhs_rows, rest_rows, centre_rows = (

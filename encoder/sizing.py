@@ -344,7 +344,7 @@ class SizeTarget(PrecisionSizing):
             if over is not None and written < self.target * (1 - 3 * FIT_SLACK):
                 chosen, count, data = self._fill_gap(chosen, data, *over, writer, encoder,
                                                      patch, weights, record)
-            size = written if count == len(patch) else len(data)
+            size = len(data)
         record["seconds"] = round(time.perf_counter() - start, 2)
         if chosen is not None:
             record.update(self.adopt(search, chosen, encoder))

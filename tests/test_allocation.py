@@ -479,7 +479,7 @@ def test_a_gap_in_the_curve_at_the_aim_is_crossed_when_the_next_point_fits(shrin
 
     def pruned_file(writer, encoder, patch, weights, count):
         written.append(real(encoder.config.entry_counts["bytes"]))
-        return types.SimpleNamespace(size=written[-1], data=b"")
+        return types.SimpleNamespace(size=written[-1], data=bytes(written[-1]))  # as WrittenFile
 
     config = _config("balanced", target)
     sizing = sizing_module.SizeTarget(config, None, "cpu")

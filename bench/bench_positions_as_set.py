@@ -32,9 +32,7 @@ from spcodec.encoder.pipeline import encode
 from spcodec.encoder.presets import preset_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from scenes import REAL, data_dir  # noqa: E402
-
-UP = {"donut": "+z"}  # every other shared scene is y-down, the encoder's default
+from scenes import REAL, UP, data_dir  # noqa: E402
 
 
 def positions_bytes(data: bytes) -> int:

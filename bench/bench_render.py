@@ -35,16 +35,10 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from scenes import data_dir  # noqa: E402
+from scenes import REAL, UP, data_dir  # noqa: E402
 
 DATA = data_dir()
-SCENES = {
-    "donut": DATA / "v3dg_donut_mipsplatting" / "fused.ply",
-    "fourth_st": DATA / "pdal_fourth_st_spz" / "fourth_st_inria.ply",
-    "biker": DATA / "playcanvas_biker_guitar" / "biker_from_spz_inria.ply",
-    "guitar": DATA / "playcanvas_biker_guitar" / "guitar_inria.ply",
-    "kacytran": DATA / "kacytran_try_sh3" / "point_cloud_iteration_7000.ply",
-}
+SCENES = {name: DATA / path for name, path in REAL.items()}
 
 
 def overview_camera(means, size: int, fov_deg: float = 50.0):
@@ -141,7 +135,7 @@ def drawing_views(scene: str, per_group: int = 3) -> list[dict]:
     from spcodec.imaging.render.projection import project
 
     cloud = spcodec.read_ply(SCENES[scene])
-    config = EncoderConfig(up=SCENE_UP.get(scene, "-y"))
+    config = EncoderConfig(up=UP.get(scene, "-y"))
     params = GaussianParams.from_cloud(cloud, torch.device("cpu"))
     groups = {f"training {name}": cameras for name, cameras
               in training_framings(cloud, config, AllocationConfig()).items()}
@@ -162,10 +156,6 @@ def drawing_views(scene: str, per_group: int = 3) -> list[dict]:
                                 for _ in range(2))
             rows.append(row)
     return rows
-
-
-SCENE_UP = {"donut": "+z"}
-"""Scenes whose up axis is not the INRIA default."""
 
 
 def _seconds(fn, *args) -> float:
@@ -190,10 +180,14 @@ def print_drawing_views(rows: list[dict]) -> None:
         return statistics.mean((r[large] if r["ratio"] > threshold else r[small])
                                / min(r[small], r[large]) for r in part)
 
+    scenes = sorted({r["scene"] for r in rows})
+    if len(scenes) < 2:
+        print("\n(one scene: no threshold is fitted; hold one out of two or more)")
+        return
     thresholds = [1.5 + 0.05 * k for k in range(51)]
     print("\n| held out | threshold fitted on the others | its cost | "
           f"tile {small} alone | tile {large} alone |\n|---|---|---|---|---|")
-    for scene in sorted({r["scene"] for r in rows}):
+    for scene in scenes:
         fit = [r for r in rows if r["scene"] != scene]
         test = [r for r in rows if r["scene"] == scene]
         best = min(thresholds, key=lambda t: cost(fit, t))

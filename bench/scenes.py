@@ -18,6 +18,8 @@ REAL = {
     "guitar": "playcanvas_biker_guitar/guitar_inria.ply",
     "kacytran": "kacytran_try_sh3/point_cloud_iteration_7000.ply",
 }
+UP = {"donut": "+z"}
+"""The up axis of the real scenes whose up is not the encoder's default (-y)."""
 TILED = {  # name: (real scene tiled, Gaussians)
     "500k": ("fourth_st", 500_000), "1M": ("fourth_st", 1_000_000),
     "biker-500k": ("biker", 500_000), "biker-1M": ("biker", 1_000_000),

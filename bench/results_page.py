@@ -80,7 +80,9 @@ COMMANDS = {
             "--ratios 100 30 --retrain-iterations 1000 --finish-iterations 200 --threads 2 --jobs 4"),
     "fast": (f"{SWEEP} --methods noretrain pr-target --pr-fractions 0.25   # encode: each row's seconds",
              "python bench/bench_decode.py --repeat 10",
-             "python bench/bench_web_decode.py --repeat 10 --rounds 5   # npm ci in web/, bench/web/"),
+             "python bench/bench_web_decode.py --repeat 10 --rounds 5   # npm ci in web/, bench/web/",
+             "python bench/bench_render.py --drawing-tiles --scenes kacytran guitar donut fourth_st "
+             "biker --threads 1   # the drawing pass's tile"),
     "page": "python bench/results_page.py",
     "curve": (f"{SWEEP} --no-eval --methods spz nr-target noretrain --presets transparent "
               "--nr-fractions 0.25 0.4 0.55 0.65 0.75   # lego: --lego-model M"),
@@ -110,6 +112,15 @@ DECODE_FIGURES = (
      "58 / 43 / 105 ms (2.3 / 2.1 / 1.5 M Gaussians/s)", "8"),
     ("fourth_st / guitar in Chromium, request to a drawable scene",
      ".spc 363 / 128 ms, PLY 519 / 186 ms (1.4x sooner)", "9"),
+)
+RENDER_FIGURES = (
+    ("A drawing pass's tile chosen by its footprints, held out per scene (60 views)",
+     "0.0-0.8 % over the faster tile of each view; 4-pixel tiles alone up to 84 % (donut), "
+     "8 alone up to 27 % (guitar)", "29.1"),
+    ("kacytran `--no-retrain --target-psnr 40`, with the closing evaluation",
+     "65-70 s before, 47 s after (the same file)", "29.1"),
+    ("`spcodec eval --reference PLY F.spc --no-cache`, kacytran / donut / guitar",
+     "39.8 / 26.0 / 15.6 s before, 28.5 / 17.6 / 13.4 s after (one run each)", "29.1"),
 )
 STILL_MISSED = (
     ("Quantization costs at most 1 dB of the retrained quality",
@@ -434,6 +445,11 @@ def how_fast(page: Page, rows: list[dict]) -> None:
     page.add("", "Decoding, quoted from the log (no row of `docs/results/` holds it):", "",
              "| decode | time | source |", "|---|---|---|")
     for what, figure, section in DECODE_FIGURES:
+        page.add(f"| {what} | {figure} | {page.log(section)} |")
+    page.add("", "Rendering without gradients (evaluations, a quality target's judgements, "
+             "previews), quoted from the log, one thread:", "",
+             "| render | time | source |", "|---|---|---|")
+    for what, figure, section in RENDER_FIGURES:
         page.add(f"| {what} | {figure} | {page.log(section)} |")
     page.command("fast")
 

@@ -203,6 +203,47 @@ def test_scaled_rotation_indices_are_never_farther_than_the_nearest_entries(seed
     assert np.all(angle(scaled) <= angle(plain) + 1e-12)
 
 
+def plain_scaled_rotation_search(q: np.ndarray, book: np.ndarray) -> np.ndarray:
+    """The search assign_rotation makes, written plainly: every component rounded afresh at
+    every multiple and every Gaussian judged at each."""
+    from spcodec.encoder.patch import ROTATION_SCALES
+
+    flat = book.astype(np.float64)[:, 0]
+    order = np.argsort(flat, kind="stable")
+    sorted_entries = flat[order]
+    midpoints = (sorted_entries[1:] + sorted_entries[:-1]) / 2.0
+    best, out = np.full(len(q), -1.0), np.zeros(q.shape, np.uint8)
+    for scale in ROTATION_SCALES:
+        idx = np.searchsorted(midpoints, q * scale)
+        coded = sorted_entries[idx]
+        norm = np.linalg.norm(coded, axis=1)
+        cosine = np.abs((coded * q).sum(axis=1)) / np.where(norm > 0, norm, np.inf)
+        better = cosine > best
+        best[better], out[better] = cosine[better], order[idx[better]]
+    return out
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 256), st.booleans())
+def test_scaled_rotation_indices_equal_the_plain_search(seed, entries, odd):
+    """Rounding again only the components that crossed a midpoint changes no index: repeated
+    entries, zeros, signs, and (``odd``) zero, infinite and NaN components included."""
+    from spcodec.encoder.patch import assign_rotation
+
+    rng = np.random.default_rng(seed)
+    q = rng.normal(size=(400, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    book = rng.uniform(-1, 1, (entries, 1)).astype(np.float16)
+    book[rng.random(entries) < 0.1] = 0
+    if entries > 1:
+        book[-1] = book[0]  # a repeated entry
+    if odd:
+        q[rng.random(400) < 0.1] = 0
+        q[rng.integers(400), rng.integers(4)] = np.nan
+        q[rng.integers(400), rng.integers(4)] = np.inf
+    assert np.array_equal(assign_rotation(q, book), plain_scaled_rotation_search(q, book))
+
+
 def test_scaled_rotation_indices_halve_the_angle_error_on_a_real_scene():
     from spcodec.attributes import canonical_rotation, decode_rotation
     from spcodec.encoder.patch import assign, assign_rotation, train_codebook

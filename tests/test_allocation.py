@@ -258,6 +258,28 @@ def test_transparent_refuses_a_size_it_would_meet_only_by_dropping_gaussians(sce
     assert len(spcodec.decode(kept.data)) == len(scene)
 
 
+def test_the_search_keeps_its_views_coverage_warning_to_itself():
+    """A flat, wide scatter of clumps (a city's coarse tileset node) covers too little of every
+    view the sampler tries, which it warns about; the search's views keep the best tries and do
+    not pass the warning on to the user, who can do nothing about them."""
+    import warnings
+
+    from spcodec.encoder.allocation import training_framings
+    from spcodec.imaging.views import ViewSamplingWarning
+
+    cloud = make_scene(5, curves=0, blobs=400, sh_degree=0).cloud
+    rng = np.random.default_rng(0)
+    blocks = rng.uniform(-200, 200, (20, 3)) * [1, 0, 1]
+    means = blocks[rng.integers(20, size=len(cloud))] + 0.5 * rng.normal(size=(len(cloud), 3))
+    city = dataclasses.replace(cloud, means=means.astype(np.float32))
+    with pytest.warns(ViewSamplingWarning, match="less than"):
+        sample_views(city, 4, resolution=(64, 64), split="train")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ViewSamplingWarning)
+        framings = training_framings(city, EncoderConfig(patch=FAST), SMALL)
+    assert [len(framings[name]) for name in ("orbit", "close")] == [SMALL.views] * 2
+
+
 def test_position_grids_cost_fewer_bytes_and_more_picture_as_they_coarsen(scene):
     """position_options writes and renders every grid: coarser grids store fewer bits per
     Gaussian and render farther from the scene; an allocation that takes one sets the patch's

@@ -23,7 +23,7 @@ import pytest
 import spcodec
 from spcodec.imaging.images import read_image
 
-from viewer_harness import VIEWER_PAGE, drive, missing_tools, serving, tile_with_one_thread
+from viewer_harness import VIEWER_PAGE, drive, missing_tools, serving, tile_with_one_thread, tileset_tiles
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -60,25 +60,9 @@ def tileset(tmp_path_factory) -> Path:
     return tile_with_one_thread(folder / "street.ply", folder / "street", leaf_size=256, branching=8)
 
 
-def tiles_of(index: dict) -> dict[str, dict]:
-    """Every tile of a tileset.json by content URI: its box's corners (lo, hi: the box's axes
-    are the scene's, as the tiler writes them), whether it is a leaf, its Gaussians."""
-    out: dict[str, dict] = {}
-    stack = [index["root"]]
-    while stack:
-        tile = stack.pop()
-        box = tile["boundingVolume"]["box"]
-        centre, half = np.array(box[:3]), np.abs(np.reshape(box[3:], (3, 3))).sum(axis=0)
-        out[tile["content"]["uri"]] = {"lo": centre - half, "hi": centre + half,
-                                       "leaf": not tile.get("children"),
-                                       "gaussians": tile["extras"]["spcodec"]["gaussians"]}
-        stack.extend(tile.get("children", []))
-    return out
-
-
 def test_the_whole_scene_comes_first_then_the_view_to_full_detail_then_what_is_behind(tileset, tmp_path):
     index = json.loads((tileset / "tileset.json").read_text())
-    tiles = tiles_of(index)
+    tiles = tileset_tiles(index)
     root_uri = index["root"]["content"]["uri"]
     node_bytes = {uri: (tileset / uri).stat().st_size for uri in tiles}
     total = sum(node_bytes.values())

@@ -20,6 +20,8 @@ import urllib.parse
 from pathlib import Path
 from typing import Iterator, Sequence
 
+import numpy as np
+
 from spcodec.cli.server import SCENE_PREFIX, VIEWER_PAGE, make_server
 
 REPO = Path(__file__).resolve().parents[1]
@@ -119,4 +121,21 @@ def tile_with_one_thread(ply: Path, out: Path, leaf_size: int, branching: int) -
                                              precision_search="none"))
     finally:
         torch.set_num_threads(threads)
+    return out
+
+
+def tileset_tiles(index: dict) -> dict[str, dict]:
+    """Every tile of a tileset.json by content URI: its box's corners (``lo``, ``hi``; the box's
+    axes are the scene's, as the tiler writes them), whether it is a ``leaf``, its ``gaussians``.
+    Callers judge a page's order of arrivals by these boxes, not by the page's own classes."""
+    out: dict[str, dict] = {}
+    stack = [index["root"]]
+    while stack:
+        tile = stack.pop()
+        box = tile["boundingVolume"]["box"]
+        centre, half = np.array(box[:3]), np.abs(np.reshape(box[3:], (3, 3))).sum(axis=0)
+        out[tile["content"]["uri"]] = {"lo": centre - half, "hi": centre + half,
+                                       "leaf": not tile.get("children"),
+                                       "gaussians": tile["extras"]["spcodec"]["gaussians"]}
+        stack.extend(tile.get("children", []))
     return out

@@ -319,7 +319,7 @@ class SizeTarget(PrecisionSizing):
                     (full_bytes <= self.target and candidate.distortion >= preset.distortion):
                 break
             tried = candidate
-            trial = trial_file(writer, _coder(candidate, encoder), patch, weights, len(patch))
+            trial = pruned_file(writer, _coder(candidate, encoder), patch, weights, len(patch))
             size = trial.size
             if size <= self.target and (written is None or size > written):
                 chosen, written, data = candidate, size, trial.data
@@ -395,7 +395,7 @@ class SizeTarget(PrecisionSizing):
         planned = self.planned
         candidates.append((None, pruned_count, planned[1] if planned is not None and
                            planned[0] == pruned_count else
-                           trial_file(writer, encoder, patch, weights, pruned_count).data))
+                           pruned_file(writer, encoder, patch, weights, pruned_count).data))
         scores = self._render_psnr([file for _, _, file in candidates])
         record["candidates"] = [
             {"options": "preset" if allocation is None else allocation.describe(),
@@ -420,7 +420,7 @@ class SizeTarget(PrecisionSizing):
             up = next((a for a in curve if a.bytes > chosen.bytes), None)
             if up is None or written >= self.target * (1 - 3 * FIT_SLACK):
                 break
-            trial = trial_file(writer, _coder(up, encoder), patch, weights, len(patch))
+            trial = pruned_file(writer, _coder(up, encoder), patch, weights, len(patch))
             if trial.size > self.target:
                 return chosen, written, data, (up, trial.size)
             chosen, written, data = up, trial.size, trial.data
@@ -463,7 +463,7 @@ class SizeTarget(PrecisionSizing):
         if not keep(count):
             return count, None
         return count, nearest[count] if count in nearest else \
-            trial_file(writer, coder, patch, weights, count).data
+            pruned_file(writer, coder, patch, weights, count).data
 
     def _render_psnr(self, files: list[bytes]) -> list[float]:
         """Mean PSNR (dB) of each file against the input over the search's training views,
@@ -718,11 +718,11 @@ def _sizing_kind(config: EncoderConfig) -> type[Sizing]:
 
 def _trial(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
            weights: np.ndarray, target: int, nearest: dict[int, bytes]) -> Callable[[int], int]:
-    """count -> bytes of the :func:`trial_file` of the ``count`` most important patch Gaussians
-    (rate control's size model). ``nearest`` keeps the one file nearest
+    """count -> bytes of the file with the ``count`` most important patch Gaussians, coded
+    without retraining (rate control's size model). ``nearest`` keeps the one file nearest
     ``target`` so far, by its count: the planner's answer, which a size target may compare."""
     def size(count: int) -> int:
-        data = trial_file(writer, encoder, patch, weights, count).data
+        data = pruned_file(writer, encoder, patch, weights, count).data
         if not nearest or abs(len(data) - target) < min(abs(len(d) - target)
                                                          for d in nearest.values()):
             nearest.clear()
@@ -745,23 +745,6 @@ def pruned_file(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud
         return writer.write_file(None)
     top = prune_by_importance(weights, count)
     return writer.write_file(encoder.encode(patch.subset(top), importance=weights[top]))
-
-
-def trial_file(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,
-               weights: np.ndarray, count: int):
-    """A size target's trial (:class:`~spcodec.writer.WrittenFile`): the ``count`` most
-    important patch Gaussians coded with the codebooks of every patch Gaussian, as a plan's
-    trimming codes its survivors. A trial is measured and rendered, never written: one k-means
-    per option (remembered by content) serves every count tried, where quantizing each count's
-    survivors afresh was most of a trial's time. With every Gaussian it is :func:`pruned_file`'s
-    file; the encode's own file quantizes its survivors afresh."""
-    if count == 0:
-        return writer.write_file(None)
-    top = prune_by_importance(weights, count)
-    importance = np.asarray(weights, np.float64)
-    quantized = encoder.quantize(patch, encoder.kmeans_weights(importance))
-    return writer.write_file(encoder.layer(patch.subset(top), quantized.subset(top),
-                                           importance[top]))
 
 
 def _pruned_files(writer: SceneWriter, encoder: PatchEncoder, patch: GaussianCloud,

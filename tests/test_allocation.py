@@ -436,7 +436,7 @@ def test_an_encode_made_again_takes_only_a_decisive_verdict_of_the_first(scene, 
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(sizing_module.SizeTarget, "_render_psnr",
                       lambda self, files: rendered.append(list(files)) or [every, pruned])
-        patch.setattr(sizing_module, "trial_file",
+        patch.setattr(sizing_module, "pruned_file",
                       lambda *args: types.SimpleNamespace(data=b"pruned"))
         first = sizing_module.SizeTarget(config, scene, "cpu")
         chosen, record = best_below(first, b"file")
@@ -499,7 +499,7 @@ def test_a_gap_in_the_curve_at_the_aim_is_crossed_when_the_next_point_fits(shrin
         gaps.append((every, over))
         return every, 4, data
 
-    def trial_file(writer, encoder, patch, weights, count):
+    def pruned_file(writer, encoder, patch, weights, count):
         written.append(real(encoder.config.entry_counts["bytes"]))
         return types.SimpleNamespace(size=written[-1], data=bytes(written[-1]))  # as WrittenFile
 
@@ -507,7 +507,7 @@ def test_a_gap_in_the_curve_at_the_aim_is_crossed_when_the_next_point_fits(shrin
     sizing = sizing_module.SizeTarget(config, None, "cpu")
     sizing.inherited, sizing.record["rate"] = search, {}
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(sizing_module, "trial_file", trial_file)
+        patch.setattr(sizing_module, "pruned_file", pruned_file)
         patch.setattr(sizing_module.SizeTarget, "_fill_gap", fill_gap)
         sizing.allocate(np.zeros(4), np.ones(4), None, PatchEncoder(config.patch), preset.bytes,
                         None, 4)

@@ -56,7 +56,7 @@ def test_the_file_that_renders_closest_is_kept(every, counts, scores):
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(sizing_module, "plan_count",
                       lambda *args, **kw: types.SimpleNamespace(count=next(planned)))
-        patch.setattr(sizing_module, "trial_file", lambda writer, encoder, cloud, weights, n:
+        patch.setattr(sizing_module, "pruned_file", lambda writer, encoder, cloud, weights, n:
                       types.SimpleNamespace(data=f"{n}".encode()))
         patch.setattr(sizing_module.SizeTarget, "_render_psnr",
                       lambda self, files: rendered.append(list(files)) or scores[:len(files)])
@@ -98,7 +98,7 @@ def test_a_gap_in_the_curve_is_filled_by_the_next_point_pruned_when_it_renders_c
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(sizing_module, "plan_count", plan_count)
-        patch.setattr(sizing_module, "trial_file", lambda writer, encoder, cloud, weights, n:
+        patch.setattr(sizing_module, "pruned_file", lambda writer, encoder, cloud, weights, n:
                       types.SimpleNamespace(data=f"{n}".encode()))
         patch.setattr(sizing_module.SizeTarget, "_render_psnr",
                       lambda self, files: rendered.append(list(files)) or
@@ -117,27 +117,3 @@ def test_a_gap_in_the_curve_is_filled_by_the_next_point_pruned_when_it_renders_c
     expected = (Point(2.0), count, f"{count}".encode()) if pruned_score > every_score else \
         (Point(1.0), PATCH, b"every")
     assert (chosen, kept, data) == expected
-
-
-def test_a_trial_codes_its_survivors_with_the_codebooks_of_every_gaussian():
-    """A size target's trial file keeps the most important Gaussians, coded with the codebooks
-    the whole patch trains (so one k-means serves every count tried); with every Gaussian it
-    is the file an encode writes."""
-    import numpy as np
-
-    import spcodec
-    from spcodec.encoder.stages import SceneWriter, WriteOptions
-    from spcodec.synthetic import make_scene
-
-    patch = make_scene(4, curves=0, blobs=600, sh_degree=1).cloud
-    encoder = PatchEncoder(PatchConfig(kmeans_iterations=5, kmeans_samples=5_000, codebook_size=32))
-    weights = np.random.default_rng(1).random(len(patch))
-    writer = SceneWriter(patch.sh_degree, [], {}, WriteOptions())
-    whole = encoder.quantize(patch, encoder.kmeans_weights(weights))
-    trial = sizing_module.trial_file(writer, encoder, patch, weights, 200).data
-    assert len(spcodec.decode(trial)) == 200
-    kept = np.sort(np.argsort(-weights)[:200])
-    assert trial == writer.write(encoder.layer(patch.subset(kept), whole.subset(kept), weights[kept]))
-    assert trial != sizing_module.pruned_file(writer, encoder, patch, weights, 200).data
-    assert sizing_module.trial_file(writer, encoder, patch, weights, len(patch)).data == \
-        sizing_module.pruned_file(writer, encoder, patch, weights, len(patch)).data

@@ -22,7 +22,6 @@ underestimates position error 2-20x, docs/LOG.md 17.1).
 from __future__ import annotations
 
 import dataclasses
-import warnings
 import zlib
 from dataclasses import dataclass, field
 from typing import Callable
@@ -538,18 +537,15 @@ _FRAMINGS: Recent[dict[str, list]] = Recent(8)
 def _placed_framings(cloud: GaussianCloud, config: EncoderConfig,
                      allocation: AllocationConfig) -> dict[str, list]:
     """The search's views. Where none of a view's tries covers enough of the picture (a flat,
-    wide scene seen from its orbit: a city's coarse tileset nodes) the best try is kept; the
-    sampler's warning is not passed on, as the importance measure's is not: a user can do
-    nothing about the encoder's own views, and a city's tileset build printed it once for each
-    node searched."""
-    from spcodec.imaging.views import ViewSamplingWarning, robust_bounds, sample_views
+    wide scene seen from its orbit: a city's coarse tileset nodes) the best try is kept without
+    a warning, as the importance measure's are: a user can do nothing about the encoder's own
+    views, and a city's tileset build printed it once for each node searched."""
+    from spcodec.imaging.views import robust_bounds, sample_views
 
     size = (allocation.resolution, allocation.resolution)
     bounds = robust_bounds(cloud)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", ViewSamplingWarning)
-        orbit = sample_views(cloud, allocation.views, resolution=size, split="train",
-                             up=config.up, seed=config.seed, bounds=bounds)
+    orbit = sample_views(cloud, allocation.views, resolution=size, split="train", up=config.up,
+                         seed=config.seed, bounds=bounds, warn=False)
     return {"orbit": orbit, "close": [c.dollied(bounds.centre, 0.5) for c in orbit]}
 
 

@@ -15,7 +15,6 @@ pixels of its ``T * alpha``. So the measure follows the renderer's blending rule
 
 from __future__ import annotations
 
-import warnings
 from concurrent.futures import ThreadPoolExecutor
 from typing import Sequence
 
@@ -29,7 +28,7 @@ from .render import GaussianParams, RenderSettings
 from .render.binning import TRAINING_TILE, bin_gaussians
 from .render.composite import BlendConfig, blend
 from .render.projection import project
-from .views import DEFAULT_UP, ViewSamplingWarning, sample_views
+from .views import DEFAULT_UP, sample_views
 
 
 def blend_weights(scene: GaussianCloud | GaussianParams, cameras: Sequence[Camera],
@@ -82,9 +81,7 @@ def training_view_weights(cloud: GaussianCloud, views: int, resolution: tuple[in
     in wall time whenever another process was busy (fourth_st, 8 views of 256x192: 4.8 s on one
     thread, 15-20 s on two).
     """
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", ViewSamplingWarning)
-        cameras = sample_views(cloud, views, resolution, split="train", seed=seed, up=up)
+    cameras = sample_views(cloud, views, resolution, split="train", seed=seed, up=up, warn=False)
     params = GaussianParams.from_cloud(cloud)
     settings = RenderSettings(sh_degree=0, tile_size=2)  # 2 beats 4 by 15-20 % at these sizes
     parts = [cameras[k::jobs] for k in range(max(1, min(jobs, len(cameras))))]

@@ -303,7 +303,7 @@ def sample_views_report(cloud: GaussianCloud, count: int, resolution: tuple[int,
                         up: Sequence[float] | str = DEFAULT_UP,
                         elevation_deg: tuple[float, float] = (-15.0, 65.0), fill: float = 0.9,
                         min_coverage: float = MIN_COVERAGE,
-                        bounds: SceneBounds | None = None) -> list[SampledView]:
+                        bounds: SceneBounds | None = None, warn: bool = True) -> list[SampledView]:
     """:func:`sample_views` with each view's coverage check and whether it passed."""
     if split not in ("train", "eval"):
         raise UsageError(f"split must be 'train' or 'eval', got {split!r}")
@@ -346,7 +346,7 @@ def sample_views_report(cloud: GaussianCloud, count: int, resolution: tuple[int,
                 best = SampledView(camera, check, False)
         failures += not best.passed
         views.append(best)
-    if failures:
+    if failures and warn:
         warnings.warn(f"{failures} of {count} {split} views reach less than {min_coverage:.0%} "
                       "coverage even after adjustment; kept the best found", ViewSamplingWarning,
                       stacklevel=2)
@@ -358,17 +358,20 @@ def sample_views(cloud: GaussianCloud, count: int, resolution: tuple[int, int] =
                  up: Sequence[float] | str = DEFAULT_UP,
                  elevation_deg: tuple[float, float] = (-15.0, 65.0), fill: float = 0.9,
                  min_coverage: float = MIN_COVERAGE,
-                 bounds: SceneBounds | None = None) -> list[Camera]:
+                 bounds: SceneBounds | None = None, warn: bool = True) -> list[Camera]:
     """``count`` deterministic cameras of ``resolution`` (width, height) around ``cloud``.
 
     ``split="train"`` and ``split="eval"`` give disjoint position sets for the same seed (see the
     module docstring for the strategy). Same arguments, same cameras, on every machine.
     ``bounds``: ``robust_bounds(cloud)`` when the caller has it already (it is computed
     otherwise; a caller that also needs the centre the views look at saves doing it twice).
+    ``warn=False``: no :class:`ViewSamplingWarning` where a view keeps its best try, for callers
+    whose views are their own business (the encoder's), not the user's; a flag rather than a
+    warnings filter, which is process-wide and not safe across threads.
     """
     return [v.camera for v in sample_views_report(
         cloud, count, resolution, split, seed, fov_y_deg, up, elevation_deg, fill, min_coverage,
-        bounds=bounds)]
+        bounds=bounds, warn=warn)]
 
 
 def _adjustments(elevation: float, middle: float) -> list[tuple[float, float]]:

@@ -238,6 +238,10 @@ def test_unreachable_coverage_warns_and_keeps_the_count() -> None:
     with pytest.warns(ViewSamplingWarning):
         report = sample_views_report(cloud, 3, RES, "eval", min_coverage=0.999)
     assert len(report) == 3 and not any(v.passed for v in report)
+    with warnings.catch_warnings():  # warn=False: the same views, and nothing said
+        warnings.simplefilter("error", ViewSamplingWarning)
+        quiet = sample_views_report(cloud, 3, RES, "eval", min_coverage=0.999, warn=False)
+    assert [v.camera.position.tolist() for v in quiet] == [v.camera.position.tolist() for v in report]
 
 
 def test_invalid_arguments() -> None:

@@ -8,7 +8,6 @@ estimate is printed (rendering them takes minutes).
 from __future__ import annotations
 
 import time
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -136,7 +135,7 @@ def evaluation_probe(cloud: GaussianCloud, config: EncoderConfig, dataset
     """What the closing evaluation (:func:`.pipeline.judge`) renders, for the estimate: its
     shape, one camera of each framing and the settings it renders with."""
     from spcodec.imaging.evaluate import EvalConfig
-    from spcodec.imaging.views import ViewSamplingWarning, robust_bounds, sample_views
+    from spcodec.imaging.views import robust_bounds, sample_views
 
     judged = EvalConfig()
     if dataset is not None:
@@ -144,11 +143,10 @@ def evaluation_probe(cloud: GaussianCloud, config: EncoderConfig, dataset
         camera = (test or dataset.train)[0].camera
         return (EvalShape(len(test), ((1.0, camera.width),)), [camera],
                 config.render_settings(_background(dataset), dataset=True))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", ViewSamplingWarning)  # the evaluation itself says it
-        bounds = robust_bounds(cloud)
-        first = sample_views(cloud, judged.views, resolution=(judged.resolution,) * 2,
-                             split="eval", seed=judged.seed, up=config.up, bounds=bounds)[0]
+    bounds = robust_bounds(cloud)
+    first = sample_views(cloud, judged.views, resolution=(judged.resolution,) * 2, split="eval",
+                         seed=judged.seed, up=config.up, bounds=bounds,
+                         warn=False)[0]  # the evaluation itself says it
     zoom = judged.closeup_resolution / judged.resolution
     framings = ((1.0, judged.resolution),) + tuple(
         (d, judged.closeup_resolution) for d in judged.closeups)

@@ -11,6 +11,7 @@ export { streamLayers } from './stream.js';
 export { decodePreview, findPreview } from './preview.js';
 export { upRotation, rotatePositions } from './orientation.js';
 export {
-  TilesetError, VIEW, parseTileset, selectTiles, visibleTiles, coversRoot, cameraInTileset, boxCorners,
+  TilesetError, VIEW, parseTileset, graftSubtree, isSubtree, selectTiles, visibleTiles, coversRoot,
+  cameraInTileset, boxCorners,
 } from './tileset.js';
 export { TilesetStream } from './tilestream.js';

@@ -29,7 +29,11 @@ export const VIEW = Object.freeze({ IN: 0, SIDE: 1, BEHIND: 2 });
 /**
  * @typedef {object} Tile
  * @property {string} id        the content URI, unique in the tileset (e.g. `nodes/n03.spc`)
- * @property {string} uri       the same, as written
+ * @property {string} uri       the same: the node's file, relative to the root tileset.json
+ * @property {string|null} subtree  for a tile that points to an external tileset not yet read
+ *   (`graftSubtree`), that file relative to the root tileset.json, and `id` and `uri` are it
+ *   too; the tile stands for the external tileset's root (its box, error and Gaussians, as the
+ *   link states them) and has no children until the file is grafted. null otherwise
  * @property {number[]} box     the 3D Tiles box: centre, then three half-axis vectors
  * @property {number[]} centre  the box's centre
  * @property {number} radius    the radius of the sphere around the box
@@ -45,11 +49,15 @@ export const VIEW = Object.freeze({ IN: 0, SIDE: 1, BEHIND: 2 });
 /**
  * @typedef {object} Tileset
  * @property {Tile} root
- * @property {Tile[]} tiles   every tile, parents before their children
+ * @property {Tile[]} tiles   every tile read so far, parents before their children
  * @property {Map<string, Tile>} byId
  * @property {number} geometricError  the tileset's own (drawing nothing)
- * @property {number} gaussians  Gaussians in all tiles together
- * @property {number|null} bytes  bytes of all tiles together, when every tile states its own
+ * @property {number} tileCount  tiles in the whole tileset, external files included: as the
+ *   index states it (extras.spcodec.tiles), else those read so far
+ * @property {number} gaussians  Gaussians in all tiles together (stated, else of those read)
+ * @property {number|null} bytes  bytes of all tiles together: as stated, else when every tile
+ *   read states its own and no external tileset is left unread
+ * @property {boolean} stated  whether the three totals are the index's own
  */
 
 /**
@@ -63,62 +71,144 @@ export const VIEW = Object.freeze({ IN: 0, SIDE: 1, BEHIND: 2 });
  */
 
 /**
- * Read and check a tileset.json document (text or parsed JSON).
+ * Read and check a tileset.json document (text or parsed JSON). Tiles that point to an external
+ * tileset (a `.json` content) are read as links (`Tile.subtree`), to be grafted when needed.
  * @param {string|unknown} document
  * @returns {Tileset}
  */
 export function parseTileset(document) {
+  const doc = readDocument(document, 'tileset.json');
+  const root = readTile(doc.root, 'root', null, 0, '');
+  if (root.subtree) throw new TilesetError('root.content.uri: the root tile must hold a node, not an external tileset');
+  const extras = isObject(doc.extras) && isObject(doc.extras.spcodec) ? doc.extras.spcodec : {};
+  const stated = [extras.tiles, extras.gaussians, extras.bytes].every((x) => Number.isSafeInteger(x) && x >= 0);
+  /** @type {Tileset} */
+  const tileset = { root, tiles: [root], byId: new Map([[root.id, root]]), geometricError: doc.geometricError,
+    tileCount: stated ? extras.tiles : 0, gaussians: stated ? extras.gaussians : 0, bytes: stated ? extras.bytes : null,
+    stated };
+  readChildren(tileset, doc.root, 'root', root, '');
+  if (!stated) total(tileset);
+  return tileset;
+}
+
+/**
+ * Put the external tileset `document` (text or parsed JSON) in place of `tile`, a link
+ * (`Tile.subtree`) of `tileset`: the tile becomes the external root's node, with its subtree
+ * below it, its own links left to graft in turn. Its URIs are read relative to the file's.
+ * @param {Tileset} tileset
+ * @param {Tile} tile
+ * @param {string|unknown} document
+ */
+export function graftSubtree(tileset, tile, document) {
+  const name = tile.subtree;
+  if (!name) throw new TilesetError(`${tile.uri} is not an external tileset waiting to be read`);
+  const doc = readDocument(document, name);
+  const base = name.slice(0, name.lastIndexOf('/') + 1);
+  const where = `${name} root`;
+  const root = readTile(doc.root, where, tile.parent, tile.level, base);
+  if (root.subtree) throw new TilesetError(`${where}.content.uri: an external tileset's root must hold a node`);
+  if (root.gaussians !== tile.gaussians) {
+    throw new TilesetError(`${where} holds ${root.gaussians} Gaussians, the tile pointing to it says ${tile.gaussians}`);
+  }
+  if (tileset.byId.has(root.id)) throw new TilesetError(`${where}.content.uri "${root.uri}" names a second tile`);
+  tileset.byId.delete(tile.id);
+  const { id, uri, box, centre, radius, geometricError, bytes } = root;
+  Object.assign(tile, { id, uri, box, centre, radius, geometricError, bytes, subtree: null });
+  tileset.byId.set(tile.id, tile);
+  readChildren(tileset, doc.root, where, tile, base);
+  if (!tileset.stated) total(tileset);
+}
+
+/**
+ * The checked top level of a tileset document.
+ * @param {string|unknown} document
+ * @param {string} name  the file, for messages
+ * @returns {{root: Record<string, unknown>, geometricError: number, extras?: unknown}}
+ */
+function readDocument(document, name) {
   let doc = document;
   if (typeof doc === 'string') {
     try {
       doc = JSON.parse(doc);
     } catch (error) {
-      throw new TilesetError(`tileset.json is not JSON: ${error.message}`);
+      throw new TilesetError(`${name} is not JSON: ${error.message}`);
     }
   }
-  if (!isObject(doc)) throw new TilesetError('tileset.json must be a JSON object');
+  if (!isObject(doc)) throw new TilesetError(`${name} must be a JSON object`);
   const asset = doc.asset;
   if (!isObject(asset) || typeof asset.version !== 'string') {
-    throw new TilesetError('tileset.json has no asset.version');
+    throw new TilesetError(`${name} has no asset.version`);
   }
   if (!/^1\.[01]$/.test(asset.version)) {
-    throw new TilesetError(`tileset.json asset.version "${asset.version}" is not 3D Tiles 1.0 or 1.1`);
+    throw new TilesetError(`${name} asset.version "${asset.version}" is not 3D Tiles 1.0 or 1.1`);
   }
-  const geometricError = nonNegative(doc.geometricError, 'geometricError');
-  if (!isObject(doc.root)) throw new TilesetError('tileset.json has no root tile');
-  /** @type {Tile[]} */
-  const tiles = [];
-  /** @type {Map<string, Tile>} */
-  const byId = new Map();
-  const root = readTile(doc.root, 'root', null, 0);
-  tiles.push(root);
-  byId.set(root.id, root);
-  // breadth first, iteratively: a deep document cannot overflow the stack
+  const geometricError = nonNegative(doc.geometricError, `${name} geometricError`);
+  if (!isObject(doc.root)) throw new TilesetError(`${name} has no root tile`);
+  return { root: doc.root, geometricError, extras: doc.extras };
+}
+
+/**
+ * Read the children of `raw` (the document's tile that `tile` was read from) and all below
+ * them into `tileset`, breadth first, iteratively: a deep document cannot overflow the stack.
+ * @param {Tileset} tileset
+ * @param {Record<string, unknown>} raw
+ * @param {string} where
+ * @param {Tile} tile
+ * @param {string} base  the folder of the document's file, relative to the root tileset.json
+ */
+function readChildren(tileset, raw, where, tile, base) {
   /** @type {[unknown, string, Tile][]} */
-  let pending = childrenOf(doc.root, 'root', root);
+  let pending = childrenOf(raw, where, tile);
   while (pending.length) {
     /** @type {[unknown, string, Tile][]} */
     const next = [];
-    for (const [raw, where, parent] of pending) {
+    for (const [child, at, parent] of pending) {
       if (parent.level + 1 > TILESET_LIMITS.maxDepth) {
-        throw new TilesetError(`${where}: tiles nest deeper than ${TILESET_LIMITS.maxDepth} levels`);
+        throw new TilesetError(`${at}: tiles nest deeper than ${TILESET_LIMITS.maxDepth} levels`);
       }
-      if (tiles.length >= TILESET_LIMITS.maxTiles) {
-        throw new TilesetError(`tileset.json has more than ${TILESET_LIMITS.maxTiles} tiles`);
+      if (tileset.tiles.length >= TILESET_LIMITS.maxTiles) {
+        throw new TilesetError(`the tileset has more than ${TILESET_LIMITS.maxTiles} tiles`);
       }
-      const tile = readTile(raw, where, parent, parent.level + 1);
-      if (byId.has(tile.id)) throw new TilesetError(`${where}.content.uri "${tile.uri}" names a second tile`);
-      parent.children.push(tile);
-      tiles.push(tile);
-      byId.set(tile.id, tile);
-      next.push(...childrenOf(/** @type {Record<string, unknown>} */ (raw), where, tile));
+      const read = readTile(child, at, parent, parent.level + 1, base);
+      if (tileset.byId.has(read.id)) throw new TilesetError(`${at}.content.uri "${read.uri}" names a second tile`);
+      if (read.subtree && /** @type {Record<string, unknown>} */ (child).children != null
+        && /** @type {unknown[]} */ (/** @type {Record<string, unknown>} */ (child).children).length) {
+        throw new TilesetError(`${at} points to an external tileset and has children`);
+      }
+      parent.children.push(read);
+      tileset.tiles.push(read);
+      tileset.byId.set(read.id, read);
+      next.push(...childrenOf(/** @type {Record<string, unknown>} */ (child), at, read));
     }
     pending = next;
   }
-  const stated = tiles.every((t) => t.bytes != null);
-  return { root, tiles, byId, geometricError,
-    gaussians: tiles.reduce((n, t) => n + t.gaussians, 0),
-    bytes: stated ? tiles.reduce((n, t) => n + /** @type {number} */ (t.bytes), 0) : null };
+}
+
+/** The totals of the tiles read so far, where the index states none. @param {Tileset} tileset */
+function total(tileset) {
+  const tiles = tileset.tiles;
+  tileset.tileCount = tiles.length;
+  tileset.gaussians = tiles.reduce((n, t) => n + t.gaussians, 0);
+  tileset.bytes = tiles.every((t) => t.bytes != null && !t.subtree)
+    ? tiles.reduce((n, t) => n + /** @type {number} */ (t.bytes), 0) : null;
+}
+
+/**
+ * `uri`, written in a file in folder `base` (relative to the root tileset.json, '' or ending in
+ * '/'), relative to the root tileset.json; an absolute URI unchanged.
+ * @param {string} base
+ * @param {string} uri
+ */
+function resolveUri(base, uri) {
+  if (!base || /^[a-z][a-z0-9+.-]*:|^\//i.test(uri)) return uri;
+  const url = new URL(uri, `http://tileset.invalid/${base}`);
+  if (url.host !== 'tileset.invalid') return uri;
+  return decodeURIComponent(url.pathname.slice(1)) + url.search + url.hash;
+}
+
+/** Whether a content URI names an external tileset (a JSON file), not a node. @param {string} uri */
+export function isSubtree(uri) {
+  return /\.json$/i.test(uri.split(/[?#]/)[0]);
 }
 
 /**
@@ -126,22 +216,25 @@ export function parseTileset(document) {
  * @param {string} where
  * @param {Tile|null} parent
  * @param {number} level
+ * @param {string} base  the folder of the file `raw` is in, relative to the root tileset.json
  * @returns {Tile}
  */
-function readTile(raw, where, parent, level) {
+function readTile(raw, where, parent, level, base) {
   if (!isObject(raw)) throw new TilesetError(`${where} must be an object`);
   const volume = raw.boundingVolume;
   const box = isObject(volume) ? volume.box : undefined;
   if (!Array.isArray(box) || box.length !== 12 || !box.every(Number.isFinite)) {
     throw new TilesetError(`${where}.boundingVolume.box must be 12 finite numbers (other volumes are not read)`);
   }
-  // a child without `refine` inherits its parent's, which is REPLACE (checked there)
+  // a child without `refine` inherits its parent's, which is REPLACE (checked there); so does
+  // the root of an external tileset, whose parent is the tile that pointed to it
   const refine = raw.refine ?? (parent ? 'REPLACE' : null);
   if (refine !== 'REPLACE') {
     throw new TilesetError(`${where}.refine is ${JSON.stringify(refine)}: only "REPLACE" is supported`);
   }
-  const uri = isObject(raw.content) ? raw.content.uri : undefined;
-  if (typeof uri !== 'string' || !uri) throw new TilesetError(`${where}.content.uri must name the tile's .spc`);
+  const written = isObject(raw.content) ? raw.content.uri : undefined;
+  if (typeof written !== 'string' || !written) throw new TilesetError(`${where}.content.uri must name the tile's .spc`);
+  const uri = resolveUri(base, written);
   const extras = isObject(raw.extras) && isObject(raw.extras.spcodec) ? raw.extras.spcodec : null;
   if (!extras) throw new TilesetError(`${where}.extras.spcodec is missing: not an spcodec tileset`);
   const gaussians = extras.gaussians;
@@ -159,7 +252,7 @@ function readTile(raw, where, parent, level) {
   for (const [a, b] of [[1, 1], [1, -1], [-1, 1], [-1, -1]]) {
     radius = Math.max(radius, Math.hypot(...u.map((x, i) => x + a * v[i] + b * w[i])));
   }
-  return { id: uri, uri, box: box.slice(), centre, radius,
+  return { id: uri, uri, subtree: isSubtree(uri) ? uri : null, box: box.slice(), centre, radius,
     geometricError: nonNegative(raw.geometricError, `${where}.geometricError`), gaussians,
     bytes: bytes ?? null, level, parent, children: [] };
 }
@@ -171,7 +264,7 @@ function readTile(raw, where, parent, level) {
  * @returns {[unknown, string, Tile][]}
  */
 function childrenOf(raw, where, tile) {
-  if (raw.children == null) return [];
+  if (raw.children == null || tile.subtree) return [];
   if (!Array.isArray(raw.children)) throw new TilesetError(`${where}.children must be an array`);
   return raw.children.map((child, i) => [child, `${where}.children[${i}]`, tile]);
 }

@@ -1,12 +1,17 @@
 // A tiled scene streamed by view, for any renderer: the index first, then the root node (the whole
 // scene, coarse), then the nodes the camera's selection needs (tileset.js), fetched in its order
 // and decoded whole with the decoder; each node is shown, and its parent hidden, as REPLACE
-// refinement allows. The PlayCanvas and three.js loaders and the viewer are built on it: they
+// refinement allows. A tile of the selection that points to an external tileset is fetched as
+// that file, grafted into the tree, and the camera's selection made again, which then asks for
+// the tile's node and, as the view needs, the subtree below it. The PlayCanvas and three.js loaders and the viewer are built on it: they
 // give it a renderer (three functions) and call `update` when the camera moves.
 
 import { decode } from './decoder.js';
 import { upRotation } from './orientation.js';
-import { TilesetError, cameraInTileset, coversRoot, parseTileset, selectTiles, visibleTiles } from './tileset.js';
+import {
+  TilesetError, cameraInTileset, coversRoot, graftSubtree, parseTileset, selectTiles,
+  visibleTiles,
+} from './tileset.js';
 
 /**
  * What a renderer does with the tiles' Gaussians; `H` is its object for one tile.
@@ -71,14 +76,22 @@ export class TilesetStream {
     this.selection = null;
     /** @type {Map<import('./tileset.js').Tile, H>} */
     this.loaded = new Map();
-    /** @type {Map<import('./tileset.js').Tile, Promise<void>>} */
+    /** @type {Map<import('./tileset.js').Tile, Promise<void>>} nodes on their way */
     this.inFlight = new Map();
+    /** @type {Map<import('./tileset.js').Tile, Promise<void>>} external tilesets on their way,
+     * by the link tile they replace */
+    this.subtrees = new Map();
     /** @type {Set<import('./tileset.js').Tile>} */
     this.failed = new Set();
     /** @type {Set<import('./tileset.js').Tile>} */
     this.shown = new Set();
     this.bytesLoaded = 0;
     this.indexBytes = 0;
+    /** bytes of the external tilesets read so far (in `bytesLoaded` too) */
+    this.subtreeBytes = 0;
+    /** @type {import('./tileset.js').Camera|null} the last camera, selected for again when a
+     * subtree arrives */
+    this.camera = null;
     /** @type {TileArrival[]} */
     this.arrivals = [];
     /** @type {Array<() => void>} */
@@ -113,6 +126,7 @@ export class TilesetStream {
    */
   update(camera) {
     if (!this.tileset) throw new Error('TilesetStream.update before open()');
+    this.camera = camera;
     const { budget, threshold } = this.options;
     this.selection = selectTiles(this.tileset, cameraInTileset(camera, this.rotation), { budget, threshold });
     const needed = new Set(this.selection.fetch);
@@ -128,7 +142,7 @@ export class TilesetStream {
 
   /** Whether every tile the current selection needs is in (or failed). */
   get idle() {
-    return this.inFlight.size === 0 && this.next() === null;
+    return this.inFlight.size === 0 && this.subtrees.size === 0 && this.next() === null;
   }
 
   /** A promise resolving once the stream is idle. */
@@ -151,10 +165,13 @@ export class TilesetStream {
    * behind the camera arrives before the view is complete.
    */
   next() {
-    if (!this.selection) return null;
-    const pendingView = Math.min(Infinity, ...[...this.inFlight.keys()].map((t) => this.viewOf(t)));
-    for (const tile of this.selection.fetch) {
-      if (this.loaded.has(tile) || this.inFlight.has(tile) || this.failed.has(tile)) continue;
+    const selection = this.selection;
+    if (!selection) return null;
+    // a link of the selection whose file is on its way holds back later classes as a node does
+    const pending = [...this.inFlight.keys(), ...[...this.subtrees.keys()].filter((t) => selection.seen.has(t))];
+    const pendingView = Math.min(Infinity, ...pending.map((t) => this.viewOf(t)));
+    for (const tile of selection.fetch) {
+      if (this.loaded.has(tile) || this.inFlight.has(tile) || this.subtrees.has(tile) || this.failed.has(tile)) continue;
       return this.viewOf(tile) > pendingView ? null : tile;
     }
     return null;
@@ -165,26 +182,86 @@ export class TilesetStream {
     return this.selection?.seen.get(tile)?.view ?? 0;
   }
 
-  /** Start fetches up to the concurrency. */
+  /**
+   * Start fetches up to the concurrency: nodes in the selection's order, and (`prefetchSubtrees`)
+   * the external tilesets of its links.
+   */
   pump() {
     const limit = this.options.concurrency ?? 4;
+    this.prefetchSubtrees(limit);
     for (let tile = this.next(); tile && this.inFlight.size < limit; tile = this.next()) {
+      if (tile.subtree) {  // its file is read in its turn when the prefetch's are all taken
+        this.readSubtree(tile);
+        continue;
+      }
       const node = tile;
-      const job = this.fetchNode(node)
-        .then((scene) => {
-          if (this.selection?.fetch.includes(node)) this.arrive(node, scene);
-        })
-        .catch((error) => {
-          this.failed.add(node);
-          (this.options.onError ?? ((e) => console.error(e)))(error, node);
-        })
-        .finally(() => {
-          this.inFlight.delete(node);
-          this.pump();
-          if (this.idle) this.idleWaiters.splice(0).forEach((wake) => wake());
-        });
-      this.inFlight.set(node, job);
+      this.inFlight.set(node, this.settle(this.inFlight, node, this.fetchNode(node).then((scene) => {
+        if (this.selection?.fetch.includes(node)) this.arrive(node, scene);
+      })));
     }
+  }
+
+  /**
+   * Read the external tilesets of the selection's links now, in its order, `limit` at a time,
+   * rather than in their turn among the nodes: a link's node cannot be asked for until its file
+   * is in, and a file asked for only in its turn waited behind the decoding of the nodes before
+   * it, on the path to full detail, at every subtree. The files are small (a few kilobytes),
+   * so reading those of tiles behind the camera early costs the view little.
+   * @param {number} limit
+   */
+  prefetchSubtrees(limit) {
+    const selection = this.selection;
+    if (!selection) return;
+    for (const tile of selection.fetch) {
+      if (this.subtrees.size >= limit) return;
+      if (tile.subtree && !this.subtrees.has(tile) && !this.failed.has(tile)) {
+        this.readSubtree(tile);
+      }
+    }
+  }
+
+  /** Fetch and graft `tile`'s external tileset (once). @param {import('./tileset.js').Tile} tile */
+  readSubtree(tile) {
+    this.subtrees.set(tile, this.settle(this.subtrees, tile, this.fetchSubtree(tile)));
+  }
+
+  /**
+   * `job` for `tile`, ending in `jobs`' bookkeeping: a failure is reported and not retried,
+   * and the end starts the next fetches and wakes the callers waiting for idle.
+   * @param {Map<import('./tileset.js').Tile, Promise<void>>} jobs
+   * @param {import('./tileset.js').Tile} tile
+   * @param {Promise<void>} job
+   */
+  settle(jobs, tile, job) {
+    return job
+      .catch((error) => {
+        this.failed.add(tile);
+        (this.options.onError ?? ((e) => console.error(e)))(error, tile);
+      })
+      .finally(() => {
+        jobs.delete(tile);
+        this.pump();
+        if (this.idle) this.idleWaiters.splice(0).forEach((wake) => wake());
+      });
+  }
+
+  /**
+   * Fetch an external tileset, graft it in place of `tile`, and select again for the camera: the
+   * tile now names its node, and its subtree is there to refine into.
+   * @param {import('./tileset.js').Tile} tile
+   */
+  async fetchSubtree(tile) {
+    const tileset = /** @type {import('./tileset.js').Tileset} */ (this.tileset);
+    const url = new URL(/** @type {string} */ (tile.subtree), new URL(this.url, globalThis.location?.href ?? 'file:///')).href;
+    const response = await this.fetchImpl(url);
+    if (!response.ok) throw new TilesetError(`${tile.subtree}: HTTP ${response.status}`);
+    const text = await response.text();
+    const size = new TextEncoder().encode(text).length;
+    this.subtreeBytes += size;
+    this.bytesLoaded += size;
+    this.options.onProgress?.(this.bytesLoaded);
+    graftSubtree(tileset, tile, text);
+    if (this.camera) this.update(this.camera);
   }
 
   /**

@@ -28,3 +28,44 @@ export function quadtree({ depth = 3, size = 8, gaussians = 1000, bytes = 20000 
   };
   return { asset: { version: '1.1', generator: 'test' }, geometricError: size * 3, root: tile('n', 0, 0, size, 0) };
 }
+
+/**
+ * `doc` (one file, as `quadtree` makes it) split as `python -m spcodec.tiling` splits a deep
+ * index: tileset.json holds the top `levels` levels and a link (`subtrees/<id>.json`, no
+ * children) for every inner tile below them; each external tileset holds its node and the next
+ * `levels` levels, its URIs relative to its own folder. Returns the files by name.
+ * @param {any} doc
+ * @param {number} levels
+ * @returns {Record<string, any>}
+ */
+export function splitIndex(doc, levels) {
+  /** @type {Record<string, any>} */
+  const files = {};
+  const clone = (/** @type {any} */ x) => JSON.parse(JSON.stringify(x));
+  /** @returns {any} */
+  const copy = (/** @type {any} */ tile, /** @type {number} */ depth, /** @type {string} */ prefix) => {
+    const { children, ...own } = clone(tile);
+    own.content = { uri: prefix + tile.content.uri };
+    if (!tile.children) return own;
+    own.children = tile.children.map((/** @type {any} */ child) => {
+      if (depth + 1 < levels || !child.children) return copy(child, depth + 1, prefix);
+      const id = child.content.uri.replace(/^nodes\/|\.spc$/g, '');
+      files[`subtrees/${id}.json`] = { asset: doc.asset, geometricError: tile.geometricError,
+        root: copy(child, 0, '../') };
+      const { children: _, ...link } = clone(child);
+      link.content = { uri: prefix ? `${id}.json` : `subtrees/${id}.json` };
+      return link;
+    });
+    return own;
+  };
+  const tiles = [];
+  for (const stack = [doc.root]; stack.length;) {
+    const tile = stack.pop();
+    tiles.push(tile);
+    stack.push(...(tile.children ?? []));
+  }
+  files['tileset.json'] = { ...clone(doc), root: copy(doc.root, 0, ''),
+    extras: { spcodec: { tiles: tiles.length, gaussians: tiles.reduce((n, t) => n + t.extras.spcodec.gaussians, 0),
+      bytes: tiles.reduce((n, t) => n + t.extras.spcodec.bytes, 0) } } };
+  return files;
+}

@@ -7,11 +7,11 @@ import assert from 'node:assert/strict';
 import { test } from 'node:test';
 
 import {
-  TilesetError, VIEW, boxCorners, cameraInTileset, coversRoot, parseTileset, rotate, screenSpaceError,
-  selectTiles, visibleTiles,
+  TilesetError, VIEW, boxCorners, cameraInTileset, coversRoot, graftSubtree, parseTileset, rotate,
+  screenSpaceError, selectTiles, visibleTiles,
 } from '../src/tileset.js';
 import { rng } from './helpers.js';
-import { quadtree } from './tileset-docs.js';
+import { quadtree, splitIndex } from './tileset-docs.js';
 
 /** A camera at `position` looking along `forward`, 50 degrees, 600 px high. */
 const camera = (position, forward, extra = {}) => ({ position, forward, fov: 50, height: 600, ...extra });
@@ -45,7 +45,7 @@ test('a bad document gets one line naming the problem', () => {
   assert.throws(() => parseTileset('[]'), /must be a JSON object/);
   rejects((d) => { delete d.asset; }, /no asset\.version/);
   rejects((d) => { d.asset.version = '2.0'; }, /asset\.version "2\.0"/);
-  rejects((d) => { d.geometricError = -1; }, /^geometricError must be a non-negative number/);
+  rejects((d) => { d.geometricError = -1; }, /^tileset\.json geometricError must be a non-negative number/);
   rejects((d) => { delete d.root; }, /no root tile/);
   rejects((d) => { d.root.children[1].boundingVolume.box.pop(); }, /root\.children\[1\]\.boundingVolume\.box must be 12/);
   rejects((d) => { d.root.children[0].boundingVolume = { sphere: [0, 0, 0, 1] }; }, /children\[0\]\.boundingVolume\.box/);
@@ -60,6 +60,73 @@ test('a bad document gets one line naming the problem', () => {
   rejects((d) => { d.root.extras.spcodec.bytes = 1.5; }, /bytes must be a byte count/);
   rejects((d) => { d.root.children = {}; }, /root\.children must be an array/);
   rejects((d) => { d.root.children[0].geometricError = 'x'; }, /children\[0\]\.geometricError must be/);
+});
+
+/** Every external tileset of `files` grafted, shallowest first, as a viewer would reach them. */
+function graftAll(/** @type {Record<string, any>} */ files) {
+  const set = parseTileset(files['tileset.json']);
+  for (let link = set.tiles.find((t) => t.subtree); link; link = set.tiles.find((t) => t.subtree)) {
+    graftSubtree(set, link, JSON.stringify(files[/** @type {string} */ (link.subtree)]));
+  }
+  return set;
+}
+
+/** The shape of a parsed tileset: each tile's id, parent, box, error, counts and level. */
+const shape = (/** @type {import('../src/tileset.js').Tileset} */ set) => set.tiles
+  .map((t) => [t.id, t.parent?.id ?? null, t.box, t.geometricError, t.gaussians, t.bytes, t.level,
+    t.children.map((c) => c.id)])
+  .sort((a, b) => String(a[0]).localeCompare(String(b[0])));
+
+test('an index split into external tilesets reads, once grafted, as the one file it was split from', () => {
+  for (const levels of [1, 2, 3]) {
+    const doc = quadtree({ depth: 4 });
+    const files = splitIndex(doc, levels);
+    assert.ok(Object.keys(files).length > 1);
+    const top = parseTileset(files['tileset.json']);
+    // the top file alone: its levels, links for the inner tiles below them, the totals stated
+    assert.ok(top.tiles.every((t) => t.level <= levels && (t.subtree === null) === (t.level < levels)));
+    assert.equal(top.tileCount, 341);
+    assert.equal(top.gaussians, 341 * 1000);
+    assert.equal(top.bytes, 341 * 20000);
+    const link = /** @type {import('../src/tileset.js').Tile} */ (top.tiles.find((t) => t.subtree));
+    assert.match(link.id, /^subtrees\/n\d+\.json$/);
+    assert.equal(link.children.length, 0);
+    assert.ok(selectTiles(top, camera([0, 0, 0], [1, 0, 0]), { threshold: 1e-9, budget: Infinity })
+      .draw.includes(link), 'a link is drawn (and so fetched) as the node it stands for');
+    const grafted = graftAll(files);
+    assert.deepEqual(shape(grafted), shape(parseTileset(doc)));
+    assert.equal(grafted.tileCount, 341);
+  }
+});
+
+test('a bad external tileset gets one line naming it and the problem', () => {
+  const files = splitIndex(quadtree({ depth: 2 }), 1);
+  /** @param {(doc: any) => void} change @param {RegExp} message */
+  const graftRejects = (change, message) => {
+    const set = parseTileset(files['tileset.json']);
+    const link = /** @type {import('../src/tileset.js').Tile} */ (set.byId.get('subtrees/n2.json'));
+    const doc = JSON.parse(JSON.stringify(files['subtrees/n2.json']));
+    change(doc);
+    assert.throws(() => graftSubtree(set, link, doc), (error) => {
+      assert.ok(error instanceof TilesetError, String(error));
+      assert.match(error.message, message);
+      assert.ok(!error.message.includes('\n'));
+      return true;
+    });
+  };
+  graftRejects((d) => { d.root.extras.spcodec.gaussians = 7; }, /subtrees\/n2\.json root holds 7 Gaussians, the tile pointing to it says 1000/);
+  graftRejects((d) => { d.root.content.uri = '../nodes/n.spc'; }, /"nodes\/n\.spc" names a second tile/);
+  graftRejects((d) => { d.root.content.uri = 'n3.json'; }, /an external tileset's root must hold a node/);
+  graftRejects((d) => { delete d.root; }, /subtrees\/n2\.json has no root tile/);
+  graftRejects((d) => { d.root.children[1].boundingVolume.box.pop(); }, /subtrees\/n2\.json root\.children\[1\]\.boundingVolume/);
+  const set = parseTileset(files['tileset.json']);
+  assert.throws(() => graftSubtree(set, set.root, files['subtrees/n2.json']), /not an external tileset waiting/);
+  const withChildren = JSON.parse(JSON.stringify(files['tileset.json']));
+  withChildren.root.children[0].children = [withChildren.root.children[1]];
+  assert.throws(() => parseTileset(withChildren), /root\.children\[0\] points to an external tileset and has children/);
+  const rootLink = JSON.parse(JSON.stringify(files['tileset.json']));
+  rootLink.root.content.uri = 'subtrees/n.json';
+  assert.throws(() => parseTileset(rootLink), /the root tile must hold a node/);
 });
 
 test('a child without refine inherits REPLACE; a very deep document is refused, not a stack overflow', () => {

@@ -35,6 +35,8 @@ export async function showTileset({ app, pc, rig, whenShown, state, params, now,
   const progress = {
     tiles: null, gaussians: null, bytes: null,  // the whole tileset, as its index states
     budget, threshold,
+    indexBytes: null,  // of tileset.json
+    subtreeBytes: 0,  // of the external tilesets read so far (subtrees/*.json)
     arrivals: [],  // {id, level, view, leaf, gaussians, bytes, bytesLoaded, t}, in arrival order
     shown: [],  // the ids of the nodes on screen
     gaussiansShown: 0,
@@ -50,8 +52,8 @@ export async function showTileset({ app, pc, rig, whenShown, state, params, now,
   const tiles = await loadTileset(app, pc, state.src, {
     camera: rig.camera, budget, threshold, up: params.get('up'),
     onOpen: (tileset, rotation, indexBytes) => {
-      Object.assign(progress, { tiles: tileset.tiles.length, gaussians: tileset.gaussians,
-        bytes: tileset.bytes });
+      Object.assign(progress, { tiles: tileset.tileCount, gaussians: tileset.gaussians,
+        bytes: tileset.bytes, indexBytes });
       state.totalBytes = tileset.bytes == null ? null : tileset.bytes + indexBytes;  // as bytesLoaded
       const root = tileset.root;
       if (!rig.fixed && !rig.moved) {  // framed on the root's box, turned upright
@@ -90,10 +92,14 @@ export async function showTileset({ app, pc, rig, whenShown, state, params, now,
       showProgress();
     },
   });
-  app.on('update', () => { progress.idle = tiles.stream.idle; });
+  app.on('update', () => {
+    progress.idle = tiles.stream.idle;
+    progress.subtreeBytes = tiles.stream.subtreeBytes;
+  });
   await tiles.stream.whenIdle();
   await whenShown();
   progress.idle = true;
+  progress.subtreeBytes = tiles.stream.subtreeBytes;
   if (progress.errors.length) {  // the scene stays on screen, coarser there; the page says why
     const first = progress.errors[0];
     throw new Error(`${progress.errors.length} node(s) did not load, first ${first.id}: ${first.message}`);

@@ -43,6 +43,7 @@ from spcodec import GaussianCloud, read_ply, write_ply
 from spcodec.fileio import atomic_write
 from spcodec.ply import ply_bytes
 from spcodec.tiling.config import PRECISION_SEARCHES, TilingConfig
+from spcodec.tiling.tileset import read_tileset
 
 from scenes import CITY_BASES, REAL, city_scene, data_dir, load_scene, tiled_copies  # bench/ on sys.path
 
@@ -93,7 +94,7 @@ def run_one(args: argparse.Namespace) -> None:
             leaf_size=args.leaf_size, branching=args.branching, workers=args.workers,
             sketch=sketch, precision_search=args.precision_search, keep_work=True))
         per_level: dict[int, list[int]] = {}
-        stack = [json.loads(summary.tileset.read_text())["root"]]
+        stack = [read_tileset(summary.tileset)["root"]]
         while stack:
             tile = stack.pop()
             extras = tile["extras"]["spcodec"]
@@ -236,7 +237,7 @@ def decimate(args: argparse.Namespace) -> None:
             leaf_size=leaf, branching=4, workers=0, sketch=args.sketch,
             precision_search=args.precision_search))
         built = time.perf_counter() - start
-        doc = json.loads(summary.tileset.read_text())
+        doc = read_tileset(summary.tileset)
         level, chosen = level_near(doc, n / 16)
         coarse = GaussianCloud.concat([decode(work / "tileset" / t["content"]["uri"]) for t in chosen])
         ours = work / "level.ply"

@@ -30,6 +30,7 @@ sys.path.insert(0, str(REPO / "tests"))
 
 import spcodec  # noqa: E402
 from spcodec.gltf import up_rotation  # noqa: E402
+from spcodec.tiling.tileset import read_tileset  # noqa: E402
 
 from viewer_harness import VIEWER_PAGE, drive, missing_tools, serving, tileset_tiles  # noqa: E402
 
@@ -101,10 +102,13 @@ def summary(state: dict, tiles: dict[str, dict], front: set, behind: set, index_
     view_done = max((k for k in front_leaves if k < first_behind), default=None)
     return {
         "tiles": len(tiles), "gaussians": progress["gaussians"], "node_bytes": total,
-        "index_bytes": index_bytes, "budget": progress["budget"], "sse": progress["threshold"],
+        "index_bytes": index_bytes, "subtree_bytes_read": progress["subtreeBytes"],
+        "budget": progress["budget"], "sse": progress["threshold"],
         "whole_scene": {"node_bytes": progress["nodeBytesAtFullPicture"],
                         "share": progress["nodeBytesAtFullPicture"] / total,
                         "bytes_with_index": progress["bytesAtFullPicture"],
+                        "index_share": (progress["bytesAtFullPicture"]
+                                        - progress["nodeBytesAtFullPicture"]) / total,
                         "s": progress["tFullPicture"] / 1000,
                         "nodes": len(progress["shownAtFullPicture"])},
         "view_full_detail": None if view_done is None else {
@@ -146,7 +150,7 @@ def main() -> int:
         print(f"cannot run: {reason}", file=sys.stderr)
         return 2
     index_path = args.tileset / "tileset.json"
-    index = json.loads(index_path.read_text())
+    index = read_tileset(index_path)
     tiles = tileset_tiles(index)
     up = spcodec.inspect(args.tileset / index["root"]["content"]["uri"]).to_json()["metadata"].get("up")
     cam, target = default_camera(index, up)

@@ -17,7 +17,7 @@ prints only its result."""
 
 
 def configure(p: argparse.ArgumentParser) -> None:
-    from spcodec.tiling.config import PRECISION_SEARCHES, TilingConfig
+    from spcodec.tiling.config import INDEX_LINKS, PRECISION_SEARCHES, TilingConfig
 
     defaults = TilingConfig()
     p.add_argument("input", help="the scene (a binary PLY or a .splat is read memory-mapped, a "
@@ -51,6 +51,11 @@ def configure(p: argparse.ArgumentParser) -> None:
                    "workers)")
     p.add_argument("--seed", type=int, default=defaults.seed,
                    help="the encoder's seed: the same seed, the same bytes (default: %(default)s)")
+    p.add_argument("--index-levels", type=Bounded(int, 0), default=None, metavar="N",
+                   help="levels of tiles in each file of the index: tileset.json holds the top N "
+                   "and points to an external tileset (subtrees/ID.json) for each inner node "
+                   "below them; 0 writes one file (default: as many as keep a file's links to "
+                   f"{INDEX_LINKS}, 3 at branching 4)")
     p.add_argument("--keep-work", action="store_true",
                    help="keep OUT/work/ after a successful build; by default it is removed, since "
                    "its spilled leaves are as large as the input and only resume a failed build")
@@ -65,7 +70,8 @@ def run(args: argparse.Namespace) -> int:
     config = TilingConfig(leaf_size=args.leaf_size, branching=args.branching, preset=args.preset,
                           sketch=args.sketch, precision_search=args.precision_search,
                           workers=args.workers, cluster=args.cluster,
-                          seed=args.seed, keep_work=args.keep_work)
+                          seed=args.seed, keep_work=args.keep_work,
+                          index_levels=args.index_levels)
     reporter = StageReporter(enabled=not args.quiet, delay=PROGRESS_DELAY)
     try:
         summary = build_tileset(args.input, args.output, config, reporter.stage)

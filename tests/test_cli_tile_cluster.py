@@ -6,7 +6,6 @@ two worker processes that the test starts and the command only connects to."""
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import sys
@@ -19,6 +18,7 @@ from spcodec.cli import main
 from spcodec.decoder import decode
 from spcodec.ply import write_ply
 from spcodec.synthetic import make_scene
+from spcodec.tiling.tileset import read_tileset
 
 pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("single_torch_thread")]
 
@@ -44,7 +44,7 @@ def tile(ply: Path, out: Path, address: str) -> int:
 
 
 def decoded_leaves(out: Path) -> int:
-    index = json.loads((out / "tileset.json").read_text())
+    index = read_tileset(out)
     return sum(len(decode(out / t["content"]["uri"])) for t in index["root"]["children"])
 
 

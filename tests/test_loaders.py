@@ -7,7 +7,6 @@ node, the npm packages (``npm ci`` in web/, web/viewer/ and web/examples/) or Ch
 
 from __future__ import annotations
 
-import json
 import urllib.parse
 from pathlib import Path
 
@@ -16,6 +15,7 @@ import pytest
 
 import spcodec
 from spcodec.cli import main
+from spcodec.tiling.tileset import read_tileset
 
 from viewer_harness import WEB, drive, missing_tools, page_url, serving, tile_with_one_thread
 
@@ -168,7 +168,7 @@ def test_both_loaders_stream_a_tileset_by_view_and_draw_the_same_tiles(tileset, 
     """The example pages stream a tileset.json through loadTileset into real Spark and PlayCanvas:
     within the budget, the whole scene covered, refined past the root, and, from the same
     camera, the same tiles in both, which the two renderers draw alike."""
-    index = json.loads((tileset / "tileset.json").read_text())
+    index = read_tileset(tileset)
     total = sum(t["gaussians"] for t in tile_counts(index["root"]))
     budget = total // 6  # room for the root's children and a little more, not for the tileset
     query = {"src": f"/scenes/{tileset.name}/tileset.json", "width": 320, "height": 240, "capture": 1,

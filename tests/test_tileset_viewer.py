@@ -13,7 +13,6 @@ classes. Skips, saying why, without node, the npm packages or Chromium.
 from __future__ import annotations
 
 import dataclasses
-import json
 import urllib.parse
 from pathlib import Path
 
@@ -22,6 +21,7 @@ import pytest
 
 import spcodec
 from spcodec.imaging.images import read_image
+from spcodec.tiling.tileset import read_tileset
 
 from viewer_harness import VIEWER_PAGE, drive, missing_tools, serving, tile_with_one_thread, tileset_tiles
 
@@ -48,7 +48,9 @@ def require() -> None:
 
 @pytest.fixture(scope="module")
 def tileset(tmp_path_factory) -> Path:
-    """A 73-node tileset (branching 8, two levels below the root, 250 Gaussians a node)."""
+    """A 73-node tileset (branching 8, two levels below the root, 250 Gaussians a node) whose
+    index is split as a deep one's is: ``tileset.json`` holds the root and links to eight
+    external tilesets, each a level-1 node with its leaves."""
     require()
     from spcodec.synthetic import make_scene
 
@@ -57,11 +59,12 @@ def tileset(tmp_path_factory) -> Path:
     means = cloud.means.copy()
     means[:, 0] *= STRETCH
     spcodec.write_ply(folder / "street.ply", dataclasses.replace(cloud, means=means))
-    return tile_with_one_thread(folder / "street.ply", folder / "street", leaf_size=256, branching=8)
+    return tile_with_one_thread(folder / "street.ply", folder / "street", leaf_size=256, branching=8,
+                                index_levels=1)
 
 
 def test_the_whole_scene_comes_first_then_the_view_to_full_detail_then_what_is_behind(tileset, tmp_path):
-    index = json.loads((tileset / "tileset.json").read_text())
+    index = read_tileset(tileset)
     tiles = tileset_tiles(index)
     root_uri = index["root"]["content"]["uri"]
     node_bytes = {uri: (tileset / uri).stat().st_size for uri in tiles}
@@ -86,6 +89,12 @@ def test_the_whole_scene_comes_first_then_the_view_to_full_detail_then_what_is_b
     assert len(arrivals) == len(set(arrivals)) and arrivals[0] == root_uri
     for a in progress["arrivals"]:
         assert a["bytes"] == node_bytes[a["id"]]
+    # the index is read as the view needs it: tileset.json first, external tilesets after
+    subtrees = {p.name: p.stat().st_size for p in (tileset / "subtrees").iterdir()}
+    assert len(subtrees) == 8 and progress["indexBytes"] == (tileset / "tileset.json").stat().st_size
+    assert 0 < progress["subtreeBytes"] <= sum(subtrees.values())
+    assert state["bytesLoaded"] == (progress["indexBytes"] + progress["subtreeBytes"]
+                                    + sum(node_bytes[a] for a in arrivals))
 
     # the whole scene on screen after the root alone: a small share of the tileset's bytes
     share = progress["nodeBytesAtFullPicture"] / total

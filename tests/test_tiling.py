@@ -3,7 +3,6 @@ merge, node files, the 3D Tiles index, Dask scheduling with retries, and resume.
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
@@ -25,6 +24,7 @@ from spcodec.tiling.merge import MAX_OPACITY, covariances, merge_groups, weights
 from spcodec.tiling.partition import build_tree, input_identity, leaf_path, partition
 from spcodec.tiling.rows import cloud_to_rows, rows_to_cloud
 from spcodec.tiling.source import open_source
+from spcodec.tiling.tileset import read_tileset
 
 from conftest import load_bench_script, real_file
 
@@ -285,7 +285,7 @@ def test_the_spec_states_the_pair_cost_the_code_uses():
 
 # ---------------------------------------------------------------------- the whole build
 def check_tileset(out: Path, input_count: int) -> dict:
-    doc = json.loads((out / "tileset.json").read_text())
+    doc = read_tileset(out)
     assert doc["asset"]["version"] == "1.1"
     assert doc["geometricError"] >= doc["root"]["geometricError"] > 0
     leaf_inputs = 0

@@ -3,7 +3,6 @@ grows up the tree, and the work folder a finished build leaves (or not)."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +18,7 @@ from spcodec.tiling.grouping import candidate_pairs, merge_level, pair_groups
 from spcodec.tiling.merge import MAX_OPACITY, ellipsoid_area, fit_opacity, quat_to_matrix, weighted_quantile
 from spcodec.tiling.pair_cost import APPEARANCE_COST
 from spcodec.tiling.pair_cost import pair_costs as costs_of_pairs
+from spcodec.tiling.tileset import read_tileset
 
 from conftest import load_bench_script, real_file
 
@@ -189,7 +189,7 @@ def test_geometric_error_grows_with_every_level_of_a_real_scene(tmp_path):
     path = tmp_path / "guitar.ply"
     write_ply(path, cloud.subset(slice(0, len(cloud) // 4)))
     build_tileset(path, tmp_path / "out", TilingConfig(leaf_size=2048, branching=4, workers=0))
-    doc = json.loads((tmp_path / "out" / "tileset.json").read_text())
+    doc = read_tileset(tmp_path / "out")
     depth = max(t["extras"]["spcodec"]["level"] for t, _ in tiles(doc["root"]))
     assert depth >= 2
     for tile, _ in tiles(doc["root"]):

@@ -105,7 +105,8 @@ def layer_pictures(report: dict) -> list[dict]:
     return pictures
 
 
-def tile_with_one_thread(ply: Path, out: Path, leaf_size: int, branching: int) -> Path:
+def tile_with_one_thread(ply: Path, out: Path, leaf_size: int, branching: int,
+                         index_levels: int | None = None) -> Path:
     """``ply`` tiled into ``out`` on this process (no workers) at one torch thread, restored
     after: the browser tests' tilesets, built the way the CPU encodes fastest here. Their nodes
     of a few hundred Gaussians keep the preset's shapes: the precision search's fixed cost per
@@ -118,7 +119,7 @@ def tile_with_one_thread(ply: Path, out: Path, leaf_size: int, branching: int) -
     torch.set_num_threads(1)
     try:
         build_tileset(ply, out, TilingConfig(leaf_size=leaf_size, branching=branching, workers=0,
-                                             precision_search="none"))
+                                             precision_search="none", index_levels=index_levels))
     finally:
         torch.set_num_threads(threads)
     return out

@@ -48,8 +48,9 @@ def build_tileset(input_path: str | os.PathLike, out_dir: str | os.PathLike,
                   config: TilingConfig | None = None,
                   progress: ProgressFactory | None = None) -> TilingSummary:
     """Encode the scene at ``input_path`` as a 3D Tiles 1.1 tileset of ``.spc`` nodes in
-    ``out_dir`` (``tileset.json``, ``nodes/``, and while it runs ``work/``: the spilled leaves
-    and merged levels a re-run resumes from, removed at the end unless ``config.keep_work``).
+    ``out_dir`` (``tileset.json``, ``nodes/``, ``subtrees/`` for a deep tree, and while it runs
+    ``work/``: the spilled leaves and merged levels a re-run resumes from, removed at the end
+    unless ``config.keep_work``).
 
     Everything a user can get wrong (settings, input, output, the engine: a ``--cluster``
     address or a missing Dask) is checked before anything is written. ``progress`` gets a stage
@@ -79,7 +80,7 @@ def build_tileset(input_path: str | os.PathLike, out_dir: str | os.PathLike,
         stage.done(f"{sum(bool(r['encoded']) for r in records.values())} encoded, "
                    f"{sum(not r['encoded'] for r in records.values())} reused")
         finished = time.perf_counter()
-    path = write_tileset(out, parts, records)
+    path = write_tileset(out, parts, records, config.levels_per_index_file())
     remove_stale_nodes(out, parts)
     if not config.keep_work:
         shutil.rmtree(out / "work")

@@ -46,21 +46,61 @@ def require() -> None:
         pytest.skip(reason)
 
 
+def street(folder: Path, per_curve: int, blobs: int) -> Path:
+    """The synthetic scene stretched along x into a street, as a PLY in ``folder``."""
+    from spcodec.synthetic import make_scene
+
+    cloud = make_scene(seed=3, curves=10, per_curve=per_curve, blobs=blobs, sh_degree=1).cloud
+    means = cloud.means.copy()
+    means[:, 0] *= STRETCH
+    spcodec.write_ply(folder / "street.ply", dataclasses.replace(cloud, means=means))
+    return folder / "street.ply"
+
+
 @pytest.fixture(scope="module")
 def tileset(tmp_path_factory) -> Path:
     """A 73-node tileset (branching 8, two levels below the root, 250 Gaussians a node) whose
     index is split as a deep one's is: ``tileset.json`` holds the root and links to eight
     external tilesets, each a level-1 node with its leaves."""
     require()
-    from spcodec.synthetic import make_scene
-
     folder = tmp_path_factory.mktemp("tileset")
-    cloud = make_scene(seed=3, curves=10, per_curve=300, blobs=13000, sh_degree=1).cloud
-    means = cloud.means.copy()
-    means[:, 0] *= STRETCH
-    spcodec.write_ply(folder / "street.ply", dataclasses.replace(cloud, means=means))
-    return tile_with_one_thread(folder / "street.ply", folder / "street", leaf_size=256, branching=8,
-                                index_levels=1)
+    return tile_with_one_thread(street(folder, 300, 13000), folder / "street", leaf_size=256,
+                                branching=8, index_levels=1)
+
+
+@pytest.fixture(scope="module")
+def deep_tileset(tmp_path_factory) -> Path:
+    """A 341-node tileset (branching 4, four levels below the root, about 47 Gaussians a node)
+    with the default index: ``tileset.json`` holds three levels and links to 64 external
+    tilesets. Its nodes are too small for a picture; it is about the order and the budget."""
+    require()
+    folder = tmp_path_factory.mktemp("deep")
+    return tile_with_one_thread(street(folder, 600, 6000), folder / "street", leaf_size=64,
+                                branching=4)
+
+
+def visit(tileset: Path, budget: int, captures: list[dict]) -> dict:
+    """The viewer's state after streaming ``tileset`` from the street's camera."""
+    query = {"src": f"/scenes/{tileset.name}/tileset.json", "width": 320, "height": 240,
+             "capture": 1, "cam": f"{CAMERA_X},0,0", "target": f"{CAMERA_X + 1},0,0", "fov": 50,
+             "budget": budget, "sse": SSE}
+    with serving([tileset]) as base:
+        report = drive([{"url": f"{base}{VIEWER_PAGE}?{urllib.parse.urlencode(query)}",
+                         "captures": captures}])[0]
+    assert report["error"] is None, (report["error"], report["console"][-5:])
+    state = report["state"]
+    assert state["status"] == "complete" and state["tileset"]["errors"] == []
+    return state
+
+
+def sides(tiles: dict[str, dict], arrivals: list[str]) -> tuple[list[int], list[int]]:
+    """Where in ``arrivals`` the leaves wholly in front of the camera's plane came, and the
+    tiles wholly behind it."""
+    front = {uri for uri, t in tiles.items() if t["lo"][0] > CAMERA_X}
+    behind = {uri for uri, t in tiles.items() if t["hi"][0] < CAMERA_X}
+    order = {uri: i for i, uri in enumerate(arrivals)}
+    return ([order[u] for u in front if u in order and tiles[u]["leaf"]],
+            [order[u] for u in behind if u in order])
 
 
 def test_the_whole_scene_comes_first_then_the_view_to_full_detail_then_what_is_behind(tileset, tmp_path):
@@ -73,17 +113,9 @@ def test_the_whole_scene_comes_first_then_the_view_to_full_detail_then_what_is_b
     # the nodes store -y up, so the page's +Y-up world is the tileset's turned about x: on the x
     # axis (y = z = 0) the two agree
     assert spcodec.inspect(tileset / root_uri).to_json()["metadata"]["up"] == "-y"
-    query = {"src": f"/scenes/{tileset.name}/tileset.json", "width": 320, "height": 240,
-             "capture": 1, "cam": f"{CAMERA_X},0,0", "target": f"{CAMERA_X + 1},0,0", "fov": 50,
-             "budget": BUDGET, "sse": SSE}
-    with serving([tileset]) as base:
-        report = drive([{"url": f"{base}{VIEWER_PAGE}?{urllib.parse.urlencode(query)}",
-                         "captures": [{"when": "firstPicture", "path": str(tmp_path / "first.png")},
-                                      {"when": "complete", "path": str(tmp_path / "done.png")}]}])[0]
-    assert report["error"] is None, (report["error"], report["console"][-5:])
-    state = report["state"]
+    state = visit(tileset, BUDGET, [{"when": "firstPicture", "path": str(tmp_path / "first.png")},
+                                    {"when": "complete", "path": str(tmp_path / "done.png")}])
     progress = state["tileset"]
-    assert state["status"] == "complete" and progress["errors"] == []
     assert progress["tiles"] == len(tiles) and progress["bytes"] == total
     arrivals = [a["id"] for a in progress["arrivals"]]
     assert len(arrivals) == len(set(arrivals)) and arrivals[0] == root_uri
@@ -113,11 +145,7 @@ def test_the_whole_scene_comes_first_then_the_view_to_full_detail_then_what_is_b
     assert state["bytesLoaded"] < 0.75 * total
 
     # front and behind, from the boxes: wholly past the camera's plane either way
-    front = {uri for uri, t in tiles.items() if t["lo"][0] > CAMERA_X}
-    behind = {uri for uri, t in tiles.items() if t["hi"][0] < CAMERA_X}
-    order = {uri: i for i, uri in enumerate(arrivals)}
-    front_leaves = [order[u] for u in front if u in order and tiles[u]["leaf"]]
-    behind_tiles = [order[u] for u in behind if u in order]
+    front_leaves, behind_tiles = sides(tiles, arrivals)
     assert len(front_leaves) >= 8 and behind_tiles, (front_leaves, behind_tiles)
     assert max(front_leaves) < min(behind_tiles), "a tile behind the camera came before the view's leaves"
 
@@ -125,6 +153,43 @@ def test_the_whole_scene_comes_first_then_the_view_to_full_detail_then_what_is_b
     # ahead lies in a leaf that is on screen
     shown = set(progress["shown"])
     for t in np.arange(0.1, 1.5, 0.1):
+        point = np.array([CAMERA_X + t, 0.0, 0.0])
+        holders = [u for u, tile in tiles.items()
+                   if np.all(tile["lo"] <= point) and np.all(point <= tile["hi"])]
+        assert any(tiles[u]["leaf"] and u in shown for u in holders), (t, holders)
+
+
+def test_a_tileset_ten_times_its_budget_streams_its_view_first_and_reads_only_the_index_it_needs(
+        deep_tileset):
+    """Far above the budget, in a tree deep enough for the default index to split: the whole
+    scene after the root, the view's leaves before anything behind, and of the 64 external
+    tilesets only those the selection reached."""
+    index = read_tileset(deep_tileset)
+    tiles = tileset_tiles(index)
+    total_gaussians = sum(t["gaussians"] for t in tiles.values())
+    budget = total_gaussians // 10
+    subtrees = {p.name: p.stat().st_size for p in (deep_tileset / "subtrees").iterdir()}
+    assert len(tiles) == 341 and len(subtrees) == 64
+    state = visit(deep_tileset, budget, [{"when": "complete"}])
+    progress = state["tileset"]
+    arrivals = [a["id"] for a in progress["arrivals"]]
+    node_bytes = sum((deep_tileset / uri).stat().st_size for uri in tiles)
+    print(f"\n{len(arrivals)} of {len(tiles)} nodes, {progress['gaussiansShown']} of "
+          f"{total_gaussians} Gaussians shown (budget {budget}); index {progress['indexBytes']} "
+          f"bytes, then {progress['subtreeBytes']} of {sum(subtrees.values())} in external files")
+    assert progress["tiles"] == len(tiles) and progress["gaussians"] == total_gaussians
+    assert progress["shownAtFullPicture"] == [index["root"]["content"]["uri"]]
+    assert progress["nodeBytesAtFullPicture"] / node_bytes <= TARGET_SHARE
+    assert 0 < progress["gaussiansShown"] <= budget
+    assert 0 < progress["subtreeBytes"] < sum(subtrees.values()) / 2, "only what the view reached"
+    assert state["bytesLoaded"] < node_bytes / 4
+    front_leaves, behind_tiles = sides(tiles, arrivals)
+    assert len(front_leaves) >= 8, front_leaves
+    assert not behind_tiles or max(front_leaves) < min(behind_tiles)
+    # the budget goes to the nearest first: the view's axis is drawn by leaves from the camera
+    # half a unit ahead (a level-1 tile straddles the camera, where the error is unbounded)
+    shown = set(progress["shown"])
+    for t in np.arange(0.1, 0.55, 0.1):
         point = np.array([CAMERA_X + t, 0.0, 0.0])
         holders = [u for u, tile in tiles.items()
                    if np.all(tile["lo"] <= point) and np.all(point <= tile["hi"])]

@@ -422,11 +422,10 @@ export function boxCorners(tile, rotation = [0, 0, 0, 1]) {
  * The tiles to draw and fetch for `camera` within `budget` Gaussians.
  *
  * The root is always drawn (the whole scene, coarse), even past the budget. Then, best first (in
- * view before beside before behind; nearer the view's centre first; then larger error first, so
- * the tile around the camera before a far one on the view's axis; then ahead before around the
- * camera), a tile whose screen-space error exceeds `threshold` pixels is replaced by all its
- * children if their Gaussians fit in what the budget has left; one that does not fit stays, and
- * others are tried.
+ * view before beside before behind; nearer the view's centre first, ahead before around the
+ * camera; larger error first), a tile
+ * whose screen-space error exceeds `threshold` pixels is replaced by all its children if their
+ * Gaussians fit in what the budget has left; one that does not fit stays, and others are tried.
  * @param {Tileset} tileset
  * @param {Camera} camera
  * @param {{budget?: number, threshold?: number}} [options]  budget in Gaussians (default
@@ -483,9 +482,7 @@ export function selectTiles(tileset, camera, { budget = 1_500_000, threshold = 1
  * @param {TileView} b
  */
 function compare(a, b) {
-  // Infinity - Infinity is NaN: equal errors compare as 0
-  const sse = a.sse === b.sse ? 0 : (a.sse > b.sse ? -1 : 1);
-  return a.view - b.view || a.offset - b.offset || sse || a.angle - b.angle;
+  return a.view - b.view || a.offset - b.offset || a.angle - b.angle || b.sse - a.sse;
 }
 
 /**

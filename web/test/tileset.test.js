@@ -221,19 +221,6 @@ test('the place the camera looks at reaches its leaves first; refinement stops a
   assert.ok(tight.draw.some((t) => t.level < deepest && tight.seen.get(t)?.view !== VIEW.IN), 'coarse elsewhere');
 });
 
-test('where the view\'s centre leaves a choice, the budget goes to the larger error: the tile around the camera first', () => {
-  const set = parseTileset(quadtree({ depth: 2 }));
-  // inside n0 (the -x, -z quarter), looking down +x: n1 lies straight ahead, n0 around the camera
-  const cam = camera([-6, 0, -6], [1, 0, 0]);
-  const s = selectTiles(set, cam, { budget: 7000, threshold: 1e-9 });  // the root and one more
-  const n0 = set.byId.get('nodes/n0.spc');
-  const n1 = set.byId.get('nodes/n1.spc');
-  assert.equal(s.seen.get(n0)?.offset, 0);
-  assert.equal(s.seen.get(n1)?.offset, 0);
-  assert.ok((s.seen.get(n1)?.angle ?? 0) < (s.seen.get(n0)?.angle ?? 0), 'n1 is more nearly ahead');
-  assert.deepEqual([...s.refined].map((t) => t.id).sort(), ['nodes/n.spc', 'nodes/n0.spc']);
-});
-
 test('REPLACE as tiles arrive: a parent stays until its children in view are in', () => {
   const set = parseTileset(quadtree({ depth: 2 }));
   // a narrow view from beyond one edge: two of the root's children in it, two beside it

@@ -1,10 +1,11 @@
 // A tiled scene streamed by view, for any renderer: the index first, then the root node (the whole
 // scene, coarse), then the nodes the camera's selection needs (tileset.js), fetched in its order
 // and decoded whole with the decoder; each node is shown, and its parent hidden, as REPLACE
-// refinement allows. A tile of the selection that points to an external tileset is fetched as
-// that file, grafted into the tree, and the camera's selection made again, which then asks for
-// the tile's node and, as the view needs, the subtree below it. The PlayCanvas and three.js loaders and the viewer are built on it: they
-// give it a renderer (three functions) and call `update` when the camera moves.
+// refinement allows. A tile of the selection that points to an external tileset has that file
+// read at once, grafted into the tree, and the camera's selection made again, which then asks
+// for the tile's node and, as the view needs, the subtree below it. The PlayCanvas and three.js
+// loaders and the viewer are built on it: they give it a renderer (three functions) and call
+// `update` when the camera moves.
 
 import { decode } from './decoder.js';
 import { upRotation } from './orientation.js';
@@ -171,7 +172,8 @@ export class TilesetStream {
     const pending = [...this.inFlight.keys(), ...[...this.subtrees.keys()].filter((t) => selection.seen.has(t))];
     const pendingView = Math.min(Infinity, ...pending.map((t) => this.viewOf(t)));
     for (const tile of selection.fetch) {
-      if (this.loaded.has(tile) || this.inFlight.has(tile) || this.subtrees.has(tile) || this.failed.has(tile)) continue;
+      if (this.loaded.has(tile) || this.inFlight.has(tile) || this.subtrees.has(tile)) continue;
+      if (this.failed.has(tile)) continue;
       return this.viewOf(tile) > pendingView ? null : tile;
     }
     return null;
@@ -252,8 +254,7 @@ export class TilesetStream {
    */
   async fetchSubtree(tile) {
     const tileset = /** @type {import('./tileset.js').Tileset} */ (this.tileset);
-    const url = new URL(/** @type {string} */ (tile.subtree), new URL(this.url, globalThis.location?.href ?? 'file:///')).href;
-    const response = await this.fetchImpl(url);
+    const response = await this.fetchImpl(this.urlOf(/** @type {string} */ (tile.subtree)));
     if (!response.ok) throw new TilesetError(`${tile.subtree}: HTTP ${response.status}`);
     const text = await response.text();
     const size = new TextEncoder().encode(text).length;
@@ -264,13 +265,17 @@ export class TilesetStream {
     if (this.camera) this.update(this.camera);
   }
 
+  /** `uri`, relative to the index, as a URL. @param {string} uri */
+  urlOf(uri) {
+    return new URL(uri, new URL(this.url, globalThis.location?.href ?? 'file:///')).href;
+  }
+
   /**
    * Fetch and decode one node.
    * @param {import('./tileset.js').Tile} tile
    */
   async fetchNode(tile) {
-    const url = new URL(tile.uri, new URL(this.url, globalThis.location?.href ?? 'file:///')).href;
-    const response = await this.fetchImpl(url);
+    const response = await this.fetchImpl(this.urlOf(tile.uri));
     if (!response.ok) throw new TilesetError(`${tile.uri}: HTTP ${response.status}`);
     const bytes = new Uint8Array(await response.arrayBuffer());
     this.bytesLoaded += bytes.length;

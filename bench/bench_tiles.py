@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import json
 import os
 import re
@@ -35,7 +36,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import BinaryIO
+from typing import BinaryIO, Iterator
 
 import numpy as np
 
@@ -45,28 +46,34 @@ from spcodec.ply import ply_bytes
 from spcodec.tiling.config import PRECISION_SEARCHES, TilingConfig
 from spcodec.tiling.tileset import read_tileset
 
-from scenes import CITY_BASES, REAL, city_scene, data_dir, load_scene, tiled_copies  # bench/ on sys.path
+from scenes import CITY_BASES, REAL, city_blocks, data_dir, load_scene, tiled_copies  # bench/ on sys.path
 
 
 def make(args: argparse.Namespace) -> None:
     """Write the large scene: copies of one scene in a cube, or a city of several (``--layout``)."""
     if args.layout == "city":
         bases = [read_ply(data_dir() / REAL[name]) for name in CITY_BASES]
-        write_ply(args.output, city_scene(bases, args.gaussians, seed=args.seed))
+        write_parts(args.output, city_blocks(bases, args.gaussians, seed=args.seed), args.gaussians)
         print(f"{args.output}: {args.gaussians} Gaussians, a city of {', '.join(CITY_BASES)}")
         return
     base = read_ply(data_dir() / REAL[args.base])
-    header, _ = ply_bytes(base.subset(slice(0, 0)))
-    header = header.replace(b"element vertex 0\n", f"element vertex {args.gaussians}\n".encode())
+    write_parts(args.output, tiled_copies(base, args.gaussians, seed=args.seed), args.gaussians)
+    print(f"{args.output}: {args.gaussians} Gaussians from {args.base}")
+
+
+def write_parts(path: Path, parts: Iterator[GaussianCloud], n: int) -> None:
+    """A binary PLY of ``n`` Gaussians written part after part (all of one SH degree): memory
+    holds one part, not the scene (20 M Gaussians are 5 GB)."""
+    first = next(parts)
+    header, _ = ply_bytes(first.subset(slice(0, 0)))
+    header = header.replace(b"element vertex 0\n", f"element vertex {n}\n".encode())
 
     def produce(out: BinaryIO) -> None:
-        """Copy after copy: memory holds one copy, not the scene (20 M Gaussians are 5 GB)."""
         out.write(header)
-        for part in tiled_copies(base, args.gaussians, seed=args.seed):
+        for part in itertools.chain([first], parts):
             out.write(memoryview(ply_bytes(part)[1]).cast("B"))
 
-    atomic_write(args.output, produce)
-    print(f"{args.output}: {args.gaussians} Gaussians from {args.base}")
+    atomic_write(path, produce)
 
 
 def run_one(args: argparse.Namespace) -> None:

@@ -76,8 +76,15 @@ def city_scene(bases: list[GaussianCloud], n: int, seed: int = 0) -> GaussianClo
     angle about the up axis and set on the ground, with streets between blocks (pitch 1.2 x the
     largest base's footprint). Unlike :func:`tiled_scene`'s cube of one scene, the layout is
     flat and mixed, as a captured city is: many blocks side by side, of unequal density.
-    SH is padded to the highest degree among the bases.
+    SH is padded to the highest degree among the bases drawn.
     """
+    return GaussianCloud.concat(list(city_blocks(bases, n, seed)))
+
+
+def city_blocks(bases: list[GaussianCloud], n: int, seed: int = 0) -> Iterator[GaussianCloud]:
+    """The blocks :func:`city_scene` concatenates, one at a time (the last cut to reach ``n``),
+    each with the SH degree of the whole city, so a city larger than memory can be written
+    block by block."""
     rng = np.random.default_rng(seed)
     extents = [b.means.max(axis=0) - b.means.min(axis=0) for b in bases]
     pitch = 1.2 * max(float(np.hypot(e[0], e[2])) for e in extents)
@@ -85,8 +92,9 @@ def city_scene(bases: list[GaussianCloud], n: int, seed: int = 0) -> GaussianClo
     picks: list[int] = []
     while sizes[picks].sum() < n:
         picks.append(int(rng.integers(len(bases))))
+    degree = max(bases[p].sh_degree for p in picks)
     side = int(np.ceil(np.sqrt(len(picks))))
-    parts = []
+    written = 0
     for k, pick in enumerate(picks):
         part = bases[pick].subset(slice(None))
         means = part.means.astype(np.float64)
@@ -102,8 +110,11 @@ def city_scene(bases: list[GaussianCloud], n: int, seed: int = 0) -> GaussianClo
         half = angle / 2
         turn_q = np.array([np.cos(half), 0.0, np.sin(half), 0.0])
         part.quats = quat_multiply(turn_q, part.quats.astype(np.float64)).astype(np.float32)
-        parts.append(part)
-    return GaussianCloud.concat(parts).subset(slice(0, n))
+        if part.sh_degree != degree:
+            part = part.with_sh_degree(degree)
+        part = part.subset(slice(0, n - written))
+        written += len(part)
+        yield part
 
 
 def quat_multiply(q: np.ndarray, quats: np.ndarray) -> np.ndarray:

@@ -623,6 +623,23 @@ def test_a_tiled_copy_of_a_real_scene(tmp_path):
     check_tileset(tmp_path / "out", 12000)
 
 
+def test_a_large_scene_is_written_part_by_part_as_the_whole_would_be(tmp_path):
+    """``bench_tiles.py make`` writes a city or a cube of copies block by block, so a 100 M
+    scene needs one block's memory; the file is the one the whole scene would write."""
+    scenes = load_bench_script("scenes")
+    bench_tiles = load_bench_script("bench_tiles")
+    bases = [make_scene(seed=seed, curves=2, per_curve=50, blobs=200, sh_degree=degree).cloud
+             for seed, degree in ((1, 0), (2, 1), (3, 2))]
+    whole, parts = tmp_path / "whole.ply", tmp_path / "parts.ply"
+    for n in (100, 1000, 2345):
+        write_ply(whole, scenes.city_scene(bases, n, seed=5))
+        bench_tiles.write_parts(parts, scenes.city_blocks(bases, n, seed=5), n)
+        assert parts.read_bytes() == whole.read_bytes(), n
+    write_ply(whole, scenes.tiled_scene(bases[1], 1000, seed=2))
+    bench_tiles.write_parts(parts, scenes.tiled_copies(bases[1], 1000, seed=2), 1000)
+    assert parts.read_bytes() == whole.read_bytes()
+
+
 def test_nodes_built_in_this_process_run_torch_on_one_thread(monkeypatch):
     # as each worker does: the encoder's own task threads, not torch's, use the cores
     import torch

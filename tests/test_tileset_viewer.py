@@ -5,9 +5,10 @@ budget.
 The scene is long along x (a street, a corridor) and the camera stands inside it looking down +x:
 the tiles around and ahead of it are in view, those past its back are behind it. The page must put
 the whole scene on screen after a small share of the tileset's bytes (the issue's target: 2 %),
-bring the view to full detail (leaves) before any tile behind the camera arrives, and keep within
-the budget. Front and behind are judged here from the index's boxes, not from the page's own
-classes. Skips, saying why, without node, the npm packages or Chromium.
+bring the view to full detail (leaves), fetch nothing wholly behind the camera (it cannot be
+seen: the selection culls it), and keep within the budget. Front and behind are judged here from
+the index's boxes, not from the page's own classes. Skips, saying why, without node, the npm
+packages or Chromium.
 """
 
 from __future__ import annotations
@@ -103,7 +104,7 @@ def sides(tiles: dict[str, dict], arrivals: list[str]) -> tuple[list[int], list[
             [order[u] for u in behind if u in order])
 
 
-def test_the_whole_scene_comes_first_then_the_view_to_full_detail_then_what_is_behind(tileset, tmp_path):
+def test_the_whole_scene_comes_first_then_the_view_to_full_detail_and_nothing_behind(tileset, tmp_path):
     index = read_tileset(tileset)
     tiles = tileset_tiles(index)
     root_uri = index["root"]["content"]["uri"]
@@ -146,8 +147,8 @@ def test_the_whole_scene_comes_first_then_the_view_to_full_detail_then_what_is_b
 
     # front and behind, from the boxes: wholly past the camera's plane either way
     front_leaves, behind_tiles = sides(tiles, arrivals)
-    assert len(front_leaves) >= 8 and behind_tiles, (front_leaves, behind_tiles)
-    assert max(front_leaves) < min(behind_tiles), "a tile behind the camera came before the view's leaves"
+    assert len(front_leaves) >= 8, front_leaves
+    assert not behind_tiles, "a tile wholly behind the camera was fetched: it cannot be seen"
 
     # what the camera looks at is at full detail: every point of the view's axis up to 1.5 units
     # ahead lies in a leaf that is on screen
@@ -162,7 +163,7 @@ def test_the_whole_scene_comes_first_then_the_view_to_full_detail_then_what_is_b
 def test_a_tileset_ten_times_its_budget_streams_its_view_first_and_reads_only_the_index_it_needs(
         deep_tileset):
     """Far above the budget, in a tree deep enough for the default index to split: the whole
-    scene after the root, the view's leaves before anything behind, and of the 64 external
+    scene after the root, the view's leaves and nothing behind the camera, and of the 64 external
     tilesets only those the selection reached."""
     index = read_tileset(deep_tileset)
     tiles = tileset_tiles(index)
@@ -184,7 +185,13 @@ def test_a_tileset_ten_times_its_budget_streams_its_view_first_and_reads_only_th
     assert 0 < progress["subtreeBytes"] < sum(subtrees.values()) / 2, "only what the view reached"
     assert state["bytesLoaded"] < node_bytes / 4
     front_leaves, behind_tiles = sides(tiles, arrivals)
-    # the budget reaches leaves in front (the tiles nearest the view's axis refine first), and
-    # they come before anything behind the camera
-    assert len(front_leaves) >= 4, front_leaves
-    assert not behind_tiles or max(front_leaves) < min(behind_tiles)
+    assert len(front_leaves) >= 8, front_leaves
+    assert not behind_tiles, "a tile wholly behind the camera was fetched: it cannot be seen"
+    # the budget goes to the larger error first: the view's axis is drawn by leaves from the
+    # camera half a unit out (the level-1 tile around the camera has an unbounded error)
+    shown = set(progress["shown"])
+    for t in np.arange(0.1, 0.55, 0.1):
+        point = np.array([CAMERA_X + t, 0.0, 0.0])
+        holders = [u for u, tile in tiles.items()
+                   if np.all(tile["lo"] <= point) and np.all(point <= tile["hi"])]
+        assert any(tiles[u]["leaf"] and u in shown for u in holders), (t, holders)

@@ -5,8 +5,8 @@
 // it again whenever the camera moves. Refinement is REPLACE, as 3D Tiles viewers do it: a tile is
 // replaced by its children when its screen-space error exceeds a threshold in pixels and the
 // splat budget allows the children; tiles in view and nearest the view's centre are refined and
-// fetched first, tiles behind the camera last, so the view reaches full detail before anything
-// behind it is loaded.
+// fetched first; tiles wholly behind the camera are culled, neither fetched nor counted, so the
+// budget goes to what can be seen.
 
 /** A tileset.json that cannot be used; the message is one line naming the problem. */
 export class TilesetError extends Error {
@@ -413,7 +413,11 @@ export function boxCorners(tile, rotation = [0, 0, 0, 1]) {
  * @property {Tile[]} fetch   every tile needed, in the order to fetch it: the draw tiles and the
  *   refined tiles above them (shown until their children are in), in view first (nearest the
  *   view's centre first, parents before children), then beside the view, then behind the camera
+ *   (only the root can be: the whole scene behind it)
  * @property {Set<Tile>} refined  tiles replaced by their children
+ * @property {Set<Tile>} culled   children of refined tiles left out, wholly behind the camera:
+ *   they cannot be seen, so they are neither drawn, fetched nor counted against the budget (as
+ *   3D Tiles viewers cull tiles outside the view); a new camera selects them again
  * @property {Map<Tile, TileView>} seen  what was computed for each tile of `fetch`
  * @property {number} gaussians  Gaussians of the draw tiles together
  */
@@ -422,10 +426,12 @@ export function boxCorners(tile, rotation = [0, 0, 0, 1]) {
  * The tiles to draw and fetch for `camera` within `budget` Gaussians.
  *
  * The root is always drawn (the whole scene, coarse), even past the budget. Then, best first (in
- * view before beside before behind; nearer the view's centre first, ahead before around the
- * camera; larger error first), a tile
- * whose screen-space error exceeds `threshold` pixels is replaced by all its children if their
- * Gaussians fit in what the budget has left; one that does not fit stays, and others are tried.
+ * view before beside; nearer the view's centre first; then the larger error first, so the tile
+ * around the camera before a far one on the view's axis; then ahead before around the camera), a
+ * tile whose screen-space error exceeds `threshold` pixels is replaced by its children if they
+ * fit in what the budget has left; one that does not fit stays, and others are tried. Children
+ * wholly behind the camera are culled (`Selection.culled`), and a tile behind it is never refined:
+ * nothing there can be seen, so the budget goes to what can.
  * @param {Tileset} tileset
  * @param {Camera} camera
  * @param {{budget?: number, threshold?: number}} [options]  budget in Gaussians (default
@@ -440,32 +446,38 @@ export function selectTiles(tileset, camera, { budget = 1_500_000, threshold = 1
   }
   /** @type {Map<Tile, TileView>} */
   const seen = new Map();
-  const look = (/** @type {Tile} */ tile) => {
+  /** @returns {TileView} */
+  const viewFor = (/** @type {Tile} */ tile, /** @type {number} */ parentView) => {
     const where = viewOf(tile, camera);
-    const view = Math.max(where.view, tile.parent ? /** @type {any} */ (seen.get(tile.parent)).view : 0);
-    const entry = { ...where, view, sse: screenSpaceError(tile, camera) };
-    seen.set(tile, entry);
-    return entry;
+    return { ...where, view: Math.max(where.view, parentView), sse: screenSpaceError(tile, camera) };
   };
   const order = (/** @type {Tile} */ a, /** @type {Tile} */ b) => compare(
     /** @type {any} */ (seen.get(a)), /** @type {any} */ (seen.get(b)));
-  look(tileset.root);
+  seen.set(tileset.root, viewFor(tileset.root, VIEW.IN));
   /** @type {Tile[]} */
   const fetch = [tileset.root];
   /** @type {Set<Tile>} */
   const refined = new Set();
+  /** @type {Set<Tile>} */
+  const culled = new Set();
   let gaussians = tileset.root.gaussians;
   const queue = new Heap(order);
   queue.push(tileset.root);
   while (queue.size) {
     const tile = /** @type {Tile} */ (queue.pop());
-    if (!tile.children.length || /** @type {any} */ (seen.get(tile)).sse <= threshold) continue;
-    const cost = tile.children.reduce((n, c) => n + c.gaussians, 0) - tile.gaussians;
+    const own = /** @type {TileView} */ (seen.get(tile));
+    if (!tile.children.length || own.sse <= threshold || own.view === VIEW.BEHIND) continue;
+    const views = tile.children.map((c) => viewFor(c, own.view));
+    const kept = tile.children.filter((_, i) => views[i].view !== VIEW.BEHIND);
+    const cost = kept.reduce((n, c) => n + c.gaussians, 0) - tile.gaussians;
     if (gaussians + cost > budget) continue;
     gaussians += cost;
     refined.add(tile);
-    tile.children.forEach(look);
-    const children = [...tile.children].sort(order);
+    tile.children.forEach((c, i) => {
+      seen.set(c, views[i]);
+      if (views[i].view === VIEW.BEHIND) culled.add(c);
+    });
+    const children = kept.sort(order);
     fetch.push(...children);
     children.forEach((c) => queue.push(c));
   }
@@ -474,7 +486,7 @@ export function selectTiles(tileset, camera, { budget = 1_500_000, threshold = 1
   const byView = fetch.map((tile, i) => ({ tile, i }))
     .sort((a, b) => classOf(a.tile) - classOf(b.tile) || a.i - b.i)
     .map((x) => x.tile);
-  return { draw: fetch.filter((t) => !refined.has(t)), fetch: byView, refined, seen, gaussians };
+  return { draw: fetch.filter((t) => !refined.has(t)), fetch: byView, refined, culled, seen, gaussians };
 }
 
 /**
@@ -482,7 +494,9 @@ export function selectTiles(tileset, camera, { budget = 1_500_000, threshold = 1
  * @param {TileView} b
  */
 function compare(a, b) {
-  return a.view - b.view || a.offset - b.offset || a.angle - b.angle || b.sse - a.sse;
+  // Infinity - Infinity is NaN: equal errors compare as 0
+  const sse = a.sse === b.sse ? 0 : (a.sse > b.sse ? -1 : 1);
+  return a.view - b.view || a.offset - b.offset || sse || a.angle - b.angle;
 }
 
 /**
@@ -525,12 +539,14 @@ export function visibleTiles(selection, loaded) {
 }
 
 /**
- * Whether the drawn tiles cover the whole scene: every part of the root's box lies in a drawn
- * tile, or in a tile all of whose children are covered.
+ * Whether the drawn tiles cover the whole scene that can be seen: every part of the root's box
+ * lies in a drawn tile, in a culled one (wholly behind the camera: `Selection.culled`), or in a
+ * tile all of whose children are covered.
  * @param {Tile} root
  * @param {Set<Tile>} drawn
+ * @param {Set<Tile>} [culled]
  */
-export function coversRoot(root, drawn) {
+export function coversRoot(root, drawn, culled = new Set()) {
   /** @type {Tile[]} */
   const order = [];
   /** @type {Tile[]} */
@@ -538,12 +554,13 @@ export function coversRoot(root, drawn) {
   while (stack.length) {  // parents before children; decided children first, below
     const tile = /** @type {Tile} */ (stack.pop());
     order.push(tile);
-    if (!drawn.has(tile)) stack.push(...tile.children);
+    if (!drawn.has(tile) && !culled.has(tile)) stack.push(...tile.children);
   }
   /** @type {Map<Tile, boolean>} */
   const covered = new Map();
   for (const tile of order.reverse()) {
-    covered.set(tile, drawn.has(tile) || (tile.children.length > 0 && tile.children.every((c) => covered.get(c))));
+    covered.set(tile, drawn.has(tile) || culled.has(tile)
+      || (tile.children.length > 0 && tile.children.every((c) => covered.get(c))));
   }
   return /** @type {boolean} */ (covered.get(root));
 }

@@ -114,7 +114,7 @@ export class TilesetStream {
     const root = this.tileset.root;
     const scene = await this.fetchNode(root);
     this.rotation = upRotation(scene.metadata?.up ?? this.options.up);
-    this.selection = { draw: [root], fetch: [root], refined: new Set(), gaussians: root.gaussians,
+    this.selection = { draw: [root], fetch: [root], refined: new Set(), culled: new Set(), gaussians: root.gaussians,
       seen: new Map([[root, { view: 0, offset: 0, angle: 0, sse: Infinity }]]) };
     this.arrive(root, scene);
     return { tileset: this.tileset, rotation: this.rotation };
@@ -316,7 +316,7 @@ export class TilesetStream {
       this.renderer.show(handle, on);
     }
     if (changed && this.tileset) {
-      this.options.onShown?.(new Set(this.shown), coversRoot(this.tileset.root, this.shown));
+      this.options.onShown?.(new Set(this.shown), coversRoot(this.tileset.root, this.shown, this.selection.culled));
     }
   }
 }

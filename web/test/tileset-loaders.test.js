@@ -65,7 +65,8 @@ function fakePlayCanvas() {
 test('PlayCanvas: upright, one entity per node, the root off once its children are on', async () => {
   const { doc, fetchImpl } = await served();
   const { pc, app } = fakePlayCanvas();
-  const camera = { position: { x: 0, y: 0, z: 0 }, forward: { x: 1, y: 0, z: 0 }, camera: { fov: 50 },
+  // outside the scene, looking across it: every tile in front of the camera
+  const camera = { position: { x: -30, y: 0, z: 0 }, forward: { x: 1, y: 0, z: 0 }, camera: { fov: 50 },
     getPosition() { return this.position; } };
   const tiles = await loadPlayCanvas(app, /** @type {any} */ (pc), URL_, { camera: /** @type {any} */ (camera),
     fetchImpl, up: '+z', threshold: 1e-9, budget: Infinity });

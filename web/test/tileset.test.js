@@ -91,7 +91,7 @@ test('an index split into external tilesets reads, once grafted, as the one file
     const link = /** @type {import('../src/tileset.js').Tile} */ (top.tiles.find((t) => t.subtree));
     assert.match(link.id, /^subtrees\/n\d+\.json$/);
     assert.equal(link.children.length, 0);
-    assert.ok(selectTiles(top, camera([0, 0, 0], [1, 0, 0]), { threshold: 1e-9, budget: Infinity })
+    assert.ok(selectTiles(top, camera([-30, 0, 0], [1, 0, 0]), { threshold: 1e-9, budget: Infinity })
       .draw.includes(link), 'a link is drawn (and so fetched) as the node it stands for');
     const grafted = graftAll(files);
     assert.deepEqual(shape(grafted), shape(parseTileset(doc)));
@@ -165,34 +165,38 @@ test('the budget is respected for any camera, and the root is always drawn and f
     assert.equal(drawn, s.gaussians);
     if (budget >= set.root.gaussians) assert.ok(drawn <= budget, `${drawn} > ${budget}`);
     else assert.deepEqual(s.draw, [set.root]);
-    // the draw tiles cover the scene (REPLACE never leaves a hole) and none is refined
-    assert.ok(coversRoot(set.root, new Set(s.draw)));
+    // the draw tiles cover what can be seen (REPLACE never leaves a hole; culled tiles lie
+    // wholly behind the camera), and none is refined
+    assert.ok(coversRoot(set.root, new Set(s.draw), s.culled));
     assert.ok(s.draw.every((t) => !s.refined.has(t)));
+    assert.ok([...s.culled].every((t) => s.seen.get(t)?.view === VIEW.BEHIND && !s.fetch.includes(t)));
     // parents come before their children in the fetch order
     const at = new Map(s.fetch.map((t, i) => [t, i]));
     for (const t of s.fetch) if (t.parent) assert.ok(at.get(t.parent) < at.get(t), t.id);
-    // a tile refines only past the threshold, into every child
+    // a tile refines only past the threshold, into every child it does not cull
     for (const t of s.refined) {
       assert.ok(screenSpaceError(t, camera(position, forward)) > threshold);
-      assert.ok(t.children.every((c) => at.has(c)));
+      assert.ok(t.children.every((c) => at.has(c) !== s.culled.has(c)));
+      assert.notEqual(s.seen.get(t)?.view, VIEW.BEHIND);
     }
   }
 });
 
-test('tiles in view are fetched before tiles beside, and those before tiles behind the camera', () => {
+test('tiles in view are fetched before tiles beside; tiles behind the camera are culled, not fetched', () => {
   const set = parseTileset(quadtree({ depth: 4 }));
   const cam = camera([0, 0, 0], [1, 0, 0]);  // in the middle, looking along +x
   const s = selectTiles(set, cam, { budget: Infinity });
   const views = s.fetch.map((t) => s.seen.get(t)?.view);
   assert.deepEqual(views, [...views].sort((a, b) => a - b));
   const inView = s.fetch.filter((t) => s.seen.get(t)?.view === VIEW.IN);
-  const behind = s.fetch.filter((t) => s.seen.get(t)?.view === VIEW.BEHIND);
-  assert.ok(inView.length > 10 && behind.length > 10);
-  // every tile wholly behind the camera's plane is classed behind; none in view lies there
-  for (const t of s.fetch) {
-    const back = t.centre[0] + Math.abs(t.box[3]) < 0;
-    if (back) assert.equal(s.seen.get(t)?.view, VIEW.BEHIND, t.id);
+  assert.ok(inView.length > 10 && s.culled.size >= 2);
+  assert.ok(s.fetch.every((t) => s.seen.get(t)?.view !== VIEW.BEHIND), 'nothing behind is fetched');
+  // a tile is culled exactly when its box lies wholly behind the camera's plane
+  for (const t of [...s.fetch, ...s.culled]) {
+    const back = t.centre[0] + Math.abs(t.box[3]) <= 0;
+    assert.equal(s.culled.has(t), back, t.id);
   }
+  assert.ok(coversRoot(set.root, new Set(s.draw), s.culled) && !coversRoot(set.root, new Set(s.draw)));
   // a tile in view reaches in front of the camera (its sphere, which holds the box)
   assert.ok(inView.every((t) => t.centre[0] + t.radius > 0));
   // from outside the scene, the first leaf fetched is the one nearest the view's centre
@@ -219,6 +223,37 @@ test('the place the camera looks at reaches its leaves first; refinement stops a
   assert.equal(deepest, 3, 'the budget reaches leaves');
   assert.ok([...tight.refined].every((t) => tight.seen.get(t)?.view === VIEW.IN), 'refined where the camera looks');
   assert.ok(tight.draw.some((t) => t.level < deepest && tight.seen.get(t)?.view !== VIEW.IN), 'coarse elsewhere');
+});
+
+test('where the view\'s centre leaves a choice, the larger error refines first: the tile around the camera', () => {
+  const set = parseTileset(quadtree({ depth: 2 }));
+  // inside n0 (the -x, -z quarter), looking down +x: n1 lies straight ahead, n0 around the camera
+  const cam = camera([-6, 0, -6], [1, 0, 0]);
+  const n0 = /** @type {import('../src/tileset.js').Tile} */ (set.byId.get('nodes/n0.spc'));
+  const n1 = /** @type {import('../src/tileset.js').Tile} */ (set.byId.get('nodes/n1.spc'));
+  const s = selectTiles(set, cam, { budget: 7000, threshold: 1e-9 });  // the root and one more
+  assert.equal(s.seen.get(n0)?.offset, 0);
+  assert.equal(s.seen.get(n1)?.offset, 0);
+  assert.ok((s.seen.get(n1)?.angle ?? 0) < (s.seen.get(n0)?.angle ?? 0), 'n1 is more nearly ahead');
+  assert.deepEqual([...s.refined].map((t) => t.id).sort(), ['nodes/n.spc', 'nodes/n0.spc']);
+  assert.equal(s.gaussians, 7000);
+});
+
+test('children behind the camera are culled: they cost no budget, and a tile behind is never refined', () => {
+  const set = parseTileset(quadtree({ depth: 2 }));
+  const cam = camera([0.5, 0, -4], [1, 0, 0]);  // just past the middle, looking along +x
+  const s = selectTiles(set, cam, { budget: 5000, threshold: 1e-9 });
+  // the root's two children at x < 0 lie wholly behind: culled, so the root (1000) gave way to
+  // its two children in front (2000), which leaves room for one of them to refine (+3000);
+  // counting all four would have left none
+  assert.deepEqual([...s.culled].map((t) => t.id).sort(), ['nodes/n0.spc', 'nodes/n2.spc']);
+  assert.equal(s.refined.size, 2);
+  assert.equal(s.gaussians, 5000);
+  assert.ok(s.fetch.every((t) => !s.culled.has(t)));
+  // the whole scene behind the camera: the root is drawn, never refined
+  const away = selectTiles(set, camera([12, 0, 0], [1, 0, 0]), { budget: Infinity, threshold: 1e-9 });
+  assert.deepEqual(away.draw, [set.root]);
+  assert.equal(away.refined.size, 0);
 });
 
 test('REPLACE as tiles arrive: a parent stays until its children in view are in', () => {

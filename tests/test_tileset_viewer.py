@@ -104,6 +104,16 @@ def sides(tiles: dict[str, dict], arrivals: list[str]) -> tuple[list[int], list[
             [order[u] for u in behind if u in order])
 
 
+def assert_axis_drawn_by_leaves(tiles: dict[str, dict], shown: set[str], reach: float) -> None:
+    """Every point of the view's axis from 0.1 to ``reach`` units ahead of the camera lies in a
+    leaf that is on screen."""
+    for t in np.arange(0.1, reach, 0.1):
+        point = np.array([CAMERA_X + t, 0.0, 0.0])
+        holders = [u for u, tile in tiles.items()
+                   if np.all(tile["lo"] <= point) and np.all(point <= tile["hi"])]
+        assert any(tiles[u]["leaf"] and u in shown for u in holders), (t, holders)
+
+
 def test_the_whole_scene_comes_first_then_the_view_to_full_detail_and_nothing_behind(tileset, tmp_path):
     index = read_tileset(tileset)
     tiles = tileset_tiles(index)
@@ -152,12 +162,7 @@ def test_the_whole_scene_comes_first_then_the_view_to_full_detail_and_nothing_be
 
     # what the camera looks at is at full detail: every point of the view's axis up to 1.5 units
     # ahead lies in a leaf that is on screen
-    shown = set(progress["shown"])
-    for t in np.arange(0.1, 1.5, 0.1):
-        point = np.array([CAMERA_X + t, 0.0, 0.0])
-        holders = [u for u, tile in tiles.items()
-                   if np.all(tile["lo"] <= point) and np.all(point <= tile["hi"])]
-        assert any(tiles[u]["leaf"] and u in shown for u in holders), (t, holders)
+    assert_axis_drawn_by_leaves(tiles, set(progress["shown"]), 1.5)
 
 
 def test_a_tileset_ten_times_its_budget_streams_its_view_first_and_reads_only_the_index_it_needs(
@@ -189,9 +194,4 @@ def test_a_tileset_ten_times_its_budget_streams_its_view_first_and_reads_only_th
     assert not behind_tiles, "a tile wholly behind the camera was fetched: it cannot be seen"
     # the budget goes to the larger error first: the view's axis is drawn by leaves from the
     # camera half a unit out (the level-1 tile around the camera has an unbounded error)
-    shown = set(progress["shown"])
-    for t in np.arange(0.1, 0.55, 0.1):
-        point = np.array([CAMERA_X + t, 0.0, 0.0])
-        holders = [u for u, tile in tiles.items()
-                   if np.all(tile["lo"] <= point) and np.all(point <= tile["hi"])]
-        assert any(tiles[u]["leaf"] and u in shown for u in holders), (t, holders)
+    assert_axis_drawn_by_leaves(tiles, set(progress["shown"]), 0.55)

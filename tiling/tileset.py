@@ -109,15 +109,18 @@ def write_tileset(out: Path, parts: Partition, records: dict[str, dict], levels:
     that it never names a file not yet written, and remove external tilesets of an earlier tree.
     Returns the path of ``tileset.json``."""
     documents = index_documents(parts, records, levels)
-    (out / SUBTREES).mkdir(exist_ok=True)
+    folder = out / SUBTREES
+    if len(documents) > 1:
+        folder.mkdir(exist_ok=True)
     for name, document in sorted(documents.items(), key=lambda item: item[0] == TILESET_FILE):
         # compact: a viewer fetches the index before any tile, and indenting doubled it
         atomic_write(out / name, json.dumps(document, separators=(",", ":")).encode())
-    for path in (out / SUBTREES).iterdir():
-        if path.suffix == ".json" and f"{SUBTREES}/{path.name}" not in documents:
-            path.unlink()
-    if not any((out / SUBTREES).iterdir()):
-        (out / SUBTREES).rmdir()
+    if folder.is_dir():
+        for path in folder.glob("*.json"):
+            if f"{SUBTREES}/{path.name}" not in documents:
+                path.unlink()
+        if not any(folder.iterdir()):
+            folder.rmdir()
     return out / TILESET_FILE
 
 

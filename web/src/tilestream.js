@@ -161,19 +161,19 @@ export class TilesetStream {
   }
 
   /**
-   * The next tile to fetch: the first in the selection's order neither in nor on its way. Tiles
+   * The next node to fetch: the first in the selection's order neither in nor on its way. Tiles
    * of a later view class (beside, behind) wait until those before them are in, so nothing
-   * behind the camera arrives before the view is complete.
+   * behind the camera arrives before the view is complete. A link is not a node yet: its file
+   * is `prefetchSubtrees`' to read, and until it is grafted it holds back later classes as a
+   * node on its way does.
    */
   next() {
     const selection = this.selection;
     if (!selection) return null;
-    // a link of the selection whose file is on its way holds back later classes as a node does
-    const pending = [...this.inFlight.keys(), ...[...this.subtrees.keys()].filter((t) => selection.seen.has(t))];
-    const pendingView = Math.min(Infinity, ...pending.map((t) => this.viewOf(t)));
+    const unread = selection.fetch.filter((t) => t.subtree && !this.failed.has(t));
+    const pendingView = Math.min(Infinity, ...[...this.inFlight.keys(), ...unread].map((t) => this.viewOf(t)));
     for (const tile of selection.fetch) {
-      if (this.loaded.has(tile) || this.inFlight.has(tile) || this.subtrees.has(tile)) continue;
-      if (this.failed.has(tile)) continue;
+      if (tile.subtree || this.loaded.has(tile) || this.inFlight.has(tile) || this.failed.has(tile)) continue;
       return this.viewOf(tile) > pendingView ? null : tile;
     }
     return null;
@@ -192,10 +192,6 @@ export class TilesetStream {
     const limit = this.options.concurrency ?? 4;
     this.prefetchSubtrees(limit);
     for (let tile = this.next(); tile && this.inFlight.size < limit; tile = this.next()) {
-      if (tile.subtree) {  // its file is read in its turn when the prefetch's are all taken
-        this.readSubtree(tile);
-        continue;
-      }
       const node = tile;
       this.inFlight.set(node, this.settle(this.inFlight, node, this.fetchNode(node).then((scene) => {
         if (this.selection?.fetch.includes(node)) this.arrive(node, scene);

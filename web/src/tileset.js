@@ -5,8 +5,9 @@
 // it again whenever the camera moves. Refinement is REPLACE, as 3D Tiles viewers do it: a tile is
 // replaced by its children when its screen-space error exceeds a threshold in pixels and the
 // splat budget allows the children; tiles in view and nearest the view's centre are refined and
-// fetched first; tiles wholly behind the camera are culled, neither fetched nor counted, so the
-// budget goes to what can be seen.
+// fetched first; tiles wholly behind the camera are culled, neither fetched nor counted, and
+// tiles beside the view get only what the view leaves of the budget, so it goes to what can be
+// seen.
 
 /** A tileset.json that cannot be used; the message is one line naming the problem. */
 export class TilesetError extends Error {
@@ -414,10 +415,11 @@ export function boxCorners(tile, rotation = [0, 0, 0, 1]) {
  *   refined tiles above them (shown until their children are in), in view first (nearest the
  *   view's centre first, parents before children), then beside the view, then behind the camera
  *   (only the root can be: the whole scene behind it)
- * @property {Set<Tile>} refined  tiles replaced by their children
- * @property {Set<Tile>} culled   children of refined tiles left out, wholly behind the camera:
- *   they cannot be seen, so they are neither drawn, fetched nor counted against the budget (as
- *   3D Tiles viewers cull tiles outside the view); a new camera selects them again
+ * @property {Set<Tile>} refined  tiles replaced by their children (only tiles in view are)
+ * @property {Set<Tile>} culled   children of refined tiles left out: wholly behind the camera, or
+ *   beside the view where the budget the view left does not hold them. They cannot be seen, so
+ *   they are neither drawn, fetched nor counted against the budget (as 3D Tiles viewers cull
+ *   tiles outside the view); a new camera selects them again
  * @property {Map<Tile, TileView>} seen  what was computed for each tile of `fetch`
  * @property {number} gaussians  Gaussians of the draw tiles together
  */
@@ -425,13 +427,16 @@ export function boxCorners(tile, rotation = [0, 0, 0, 1]) {
 /**
  * The tiles to draw and fetch for `camera` within `budget` Gaussians.
  *
- * The root is always drawn (the whole scene, coarse), even past the budget. Then, best first (in
- * view before beside; nearer the view's centre first; then the larger error first, so the tile
- * around the camera before a far one on the view's axis; then ahead before around the camera), a
- * tile whose screen-space error exceeds `threshold` pixels is replaced by its children if they
- * fit in what the budget has left; one that does not fit stays, and others are tried. Children
- * wholly behind the camera are culled (`Selection.culled`), and a tile behind it is never refined:
- * nothing there can be seen, so the budget goes to what can.
+ * The root is always drawn (the whole scene, coarse), even past the budget. Then, best first
+ * (nearer the view's centre first; then the larger error first, so the tile around the camera
+ * before a far one on the view's axis; then ahead before around the camera), a
+ * tile in view whose screen-space error exceeds `threshold` pixels is replaced by its children in
+ * view if they fit in what the budget has left; one that does not fit stays, and others are
+ * tried. Only tiles in view are refined, and only their children in view count while the view
+ * refines: nothing else can be seen, so the budget goes to what can. Then the children beside the
+ * view (outside the cone that holds the frustum), nearest it first, are drawn as they are while
+ * the rest of the budget holds them, ready for a turn; the others, and children wholly behind the
+ * camera, are culled (`Selection.culled`).
  * @param {Tileset} tileset
  * @param {Camera} camera
  * @param {{budget?: number, threshold?: number}} [options]  budget in Gaussians (default
@@ -460,15 +465,17 @@ export function selectTiles(tileset, camera, { budget = 1_500_000, threshold = 1
   const refined = new Set();
   /** @type {Set<Tile>} */
   const culled = new Set();
+  /** @type {Tile[]} children beside the view of refined tiles: drawn with what the view leaves */
+  const beside = [];
   let gaussians = tileset.root.gaussians;
   const queue = new Heap(order);
   queue.push(tileset.root);
   while (queue.size) {
     const tile = /** @type {Tile} */ (queue.pop());
     const own = /** @type {TileView} */ (seen.get(tile));
-    if (!tile.children.length || own.sse <= threshold || own.view === VIEW.BEHIND) continue;
+    if (!tile.children.length || own.sse <= threshold || own.view !== VIEW.IN) continue;
     const views = tile.children.map((c) => viewFor(c, own.view));
-    const kept = tile.children.filter((_, i) => views[i].view !== VIEW.BEHIND);
+    const kept = tile.children.filter((_, i) => views[i].view === VIEW.IN);
     const cost = kept.reduce((n, c) => n + c.gaussians, 0) - tile.gaussians;
     if (gaussians + cost > budget) continue;
     gaussians += cost;
@@ -476,10 +483,21 @@ export function selectTiles(tileset, camera, { budget = 1_500_000, threshold = 1
     tile.children.forEach((c, i) => {
       seen.set(c, views[i]);
       if (views[i].view === VIEW.BEHIND) culled.add(c);
+      else if (views[i].view === VIEW.SIDE) beside.push(c);
     });
     const children = kept.sort(order);
     fetch.push(...children);
     children.forEach((c) => queue.push(c));
+  }
+  // then, nearest the view first, the tiles beside it that the rest of the budget holds (what a
+  // turn shows at once); those it does not hold are culled, since they cannot be seen either
+  for (const tile of beside.sort(order)) {
+    if (gaussians + tile.gaussians <= budget) {
+      gaussians += tile.gaussians;
+      fetch.push(tile);
+    } else {
+      culled.add(tile);
+    }
   }
   // stable: within a class, the order refinement reached the tiles (parents before children)
   const classOf = (/** @type {Tile} */ tile) => /** @type {TileView} */ (seen.get(tile)).view;
@@ -540,8 +558,8 @@ export function visibleTiles(selection, loaded) {
 
 /**
  * Whether the drawn tiles cover the whole scene that can be seen: every part of the root's box
- * lies in a drawn tile, in a culled one (wholly behind the camera: `Selection.culled`), or in a
- * tile all of whose children are covered.
+ * lies in a drawn tile, in a culled one (out of the view: `Selection.culled`), or in a tile all
+ * of whose children are covered.
  * @param {Tile} root
  * @param {Set<Tile>} drawn
  * @param {Set<Tile>} [culled]

@@ -166,18 +166,21 @@ test('the budget is respected for any camera, and the root is always drawn and f
     if (budget >= set.root.gaussians) assert.ok(drawn <= budget, `${drawn} > ${budget}`);
     else assert.deepEqual(s.draw, [set.root]);
     // the draw tiles cover what can be seen (REPLACE never leaves a hole; culled tiles lie
-    // wholly behind the camera), and none is refined
+    // wholly behind the camera or beside the view), and none is refined
     assert.ok(coversRoot(set.root, new Set(s.draw), s.culled));
     assert.ok(s.draw.every((t) => !s.refined.has(t)));
-    assert.ok([...s.culled].every((t) => s.seen.get(t)?.view === VIEW.BEHIND && !s.fetch.includes(t)));
+    assert.ok([...s.culled].every((t) => s.seen.get(t)?.view !== VIEW.IN && !s.fetch.includes(t)));
+    // the tiles beside the view come after every tile in view
+    const classes = s.fetch.slice(1).map((t) => s.seen.get(t)?.view ?? NaN);
+    assert.deepEqual(classes, [...classes].sort((a, b) => a - b));
     // parents come before their children in the fetch order
     const at = new Map(s.fetch.map((t, i) => [t, i]));
     for (const t of s.fetch) if (t.parent) assert.ok(at.get(t.parent) < at.get(t), t.id);
-    // a tile refines only past the threshold, into every child it does not cull
+    // a tile refines only past the threshold and in view, into every child it does not cull
     for (const t of s.refined) {
       assert.ok(screenSpaceError(t, camera(position, forward)) > threshold);
       assert.ok(t.children.every((c) => at.has(c) !== s.culled.has(c)));
-      assert.notEqual(s.seen.get(t)?.view, VIEW.BEHIND);
+      assert.equal(s.seen.get(t)?.view, VIEW.IN);
     }
   }
 });
@@ -211,18 +214,26 @@ test('the place the camera looks at reaches its leaves first; refinement stops a
   const set = parseTileset(quadtree({ depth: 3 }));
   const cam = camera([-7, 0, 0], [1, 0, 0]);
   const s = selectTiles(set, cam, { budget: Infinity, threshold: 1e-9 });
-  // with no budget and any error too large, every leaf is drawn, nothing below them
-  assert.equal(s.draw.length, 64);
-  assert.ok(s.draw.every((t) => t.children.length === 0));
-  assert.equal(s.refined.size, 1 + 4 + 16);
-  // a small budget refines the tiles in a narrow view and leaves the rest coarse
+  // with no budget and any error too large, every tile in view is refined to its leaves; the
+  // tiles beside the view (at the camera's sides: two of level 2, four leaves of refined tiles)
+  // are drawn as they are: they cannot be seen, and are there for a turn
+  const inView = s.draw.filter((t) => s.seen.get(t)?.view === VIEW.IN);
+  const beside = s.draw.filter((t) => s.seen.get(t)?.view === VIEW.SIDE);
+  assert.ok(inView.length === 52 && inView.every((t) => t.children.length === 0));
+  assert.deepEqual(beside.map((t) => t.level).sort(), [2, 2, 3, 3, 3, 3]);
+  assert.equal(inView.length + beside.length, s.draw.length);
+  assert.equal(s.refined.size, 1 + 4 + 14);
+  // a small budget refines the tiles in a narrow view, leaves the rest of it coarse, and spends
+  // nothing beside it
   const narrow = camera([-12, 0, -4], [1, 0, 0], { fov: 20, aspect: 1 });
   const tight = selectTiles(set, narrow, { budget: 14000 });
   assert.ok(tight.gaussians <= 14000);
   const deepest = Math.max(...tight.draw.map((t) => t.level));
   assert.equal(deepest, 3, 'the budget reaches leaves');
   assert.ok([...tight.refined].every((t) => tight.seen.get(t)?.view === VIEW.IN), 'refined where the camera looks');
-  assert.ok(tight.draw.some((t) => t.level < deepest && tight.seen.get(t)?.view !== VIEW.IN), 'coarse elsewhere');
+  assert.ok(tight.draw.some((t) => t.level < deepest), 'coarse where the budget ran out');
+  assert.ok(tight.draw.every((t) => tight.seen.get(t)?.view === VIEW.IN), 'the budget went to the view');
+  assert.ok([...tight.culled].some((t) => tight.seen.get(t)?.view === VIEW.SIDE));
 });
 
 test('where the view\'s centre leaves a choice, the larger error refines first: the tile around the camera', () => {
@@ -239,16 +250,23 @@ test('where the view\'s centre leaves a choice, the larger error refines first: 
   assert.equal(s.gaussians, 7000);
 });
 
-test('children behind the camera are culled: they cost no budget, and a tile behind is never refined', () => {
+test('children behind the camera are culled, those beside the view get what it leaves; neither is refined', () => {
   const set = parseTileset(quadtree({ depth: 2 }));
   const cam = camera([0.5, 0, -4], [1, 0, 0]);  // just past the middle, looking along +x
   const s = selectTiles(set, cam, { budget: 5000, threshold: 1e-9 });
   // the root's two children at x < 0 lie wholly behind: culled, so the root (1000) gave way to
-  // its two children in front (2000), which leaves room for one of them to refine (+3000);
-  // counting all four would have left none
-  assert.deepEqual([...s.culled].map((t) => t.id).sort(), ['nodes/n0.spc', 'nodes/n2.spc']);
-  assert.equal(s.refined.size, 2);
+  // its two children in front (2000); n1 refines into its four children in view (+3000), n3
+  // into its one (n31, +0), and its three beside the view find no budget left: culled too.
+  // Counting every child would have refined the root alone
+  assert.deepEqual([...s.culled].map((t) => t.id).sort(),
+    ['nodes/n0.spc', 'nodes/n2.spc', 'nodes/n30.spc', 'nodes/n32.spc', 'nodes/n33.spc']);
+  assert.equal(s.refined.size, 3);
   assert.equal(s.gaussians, 5000);
+  // with room, the tiles beside come in after the view, unrefined
+  const roomy = selectTiles(set, cam, { budget: 8000, threshold: 1e-9 });
+  assert.deepEqual(roomy.fetch.slice(-3).map((t) => t.id).sort(),
+    ['nodes/n30.spc', 'nodes/n32.spc', 'nodes/n33.spc']);
+  assert.deepEqual([...roomy.culled].map((t) => t.id).sort(), ['nodes/n0.spc', 'nodes/n2.spc']);
   assert.ok(s.fetch.every((t) => !s.culled.has(t)));
   // the whole scene behind the camera: the root is drawn, never refined
   const away = selectTiles(set, camera([12, 0, 0], [1, 0, 0]), { budget: Infinity, threshold: 1e-9 });

@@ -429,14 +429,14 @@ export function boxCorners(tile, rotation = [0, 0, 0, 1]) {
  *
  * The root is always drawn (the whole scene, coarse), even past the budget. Then, best first
  * (nearer the view's centre first; then the larger error first, so the tile around the camera
- * before a far one on the view's axis; then ahead before around the camera), a
- * tile in view whose screen-space error exceeds `threshold` pixels is replaced by its children in
- * view if they fit in what the budget has left; one that does not fit stays, and others are
- * tried. Only tiles in view are refined, and only their children in view count while the view
- * refines: nothing else can be seen, so the budget goes to what can. Then the children beside the
- * view (outside the cone that holds the frustum), nearest it first, are drawn as they are while
- * the rest of the budget holds them, ready for a turn; the others, and children wholly behind the
- * camera, are culled (`Selection.culled`).
+ * before a far one on the view's axis; then ahead before around the camera), a tile in view whose
+ * screen-space error exceeds `threshold` pixels is replaced by its children in view if they fit in
+ * what the budget has left; one that does not fit stays, and others are tried. Only tiles in view
+ * are refined, and only their children in view count while the view refines: nothing else can be
+ * seen, so the budget goes to what can. Then the children beside the view (outside the cone that
+ * holds the frustum), nearest it first, are drawn as they are while the rest of the budget holds
+ * them, ready for a turn; the others, and children wholly behind the camera, are culled
+ * (`Selection.culled`).
  * @param {Tileset} tileset
  * @param {Camera} camera
  * @param {{budget?: number, threshold?: number}} [options]  budget in Gaussians (default

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from spcodec.cloud import GaussianCloud
@@ -221,6 +221,61 @@ def test_spilled_leaves_hold_every_input_row_exactly_once(scene_ply, tmp_path):
     again = partition(source, tmp_path, identity, 400, 4, chunk_rows=257)
     assert leaf_path(tmp_path, parts.leaves[0].id).stat().st_mtime_ns == before
     assert [n.leaf_digest for n in again.leaves] == [n.leaf_digest for n in parts.leaves]
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(2, 2500), leaf=st.integers(64, 300), branching=st.sampled_from([2, 4, 8]),
+       block=st.integers(64, 900), sample=st.sampled_from([50, 400, 1 << 21]),
+       seed=st.integers(0, 2 ** 16), duplicates=st.booleans())
+def test_a_scene_cut_through_blocks_holds_every_row_once_in_leaves_of_at_most_leaf_size(
+        tmp_path_factory, n, leaf, branching, block, sample, seed, duplicates):
+    """The block path (a scene larger than a block): every input row in exactly one leaf, in
+    input order; no leaf over the leaf size or empty; every node's count its children's sum, its
+    children named by one more digit, at most ``branching`` of them; the blocks' files gone.
+    ``duplicates``: many equal centres, which can leave a block empty."""
+    from spcodec.tiling import blocks
+    from spcodec.tiling.source import LoadedScene
+
+    rng = np.random.default_rng(seed)
+    means = rng.normal(size=(n, 3)) * rng.uniform(0.01, 10, 3)
+    if duplicates:
+        means[rng.random(n) < 0.6] = means[0]
+    cloud = GaussianCloud(means=means, scales=rng.uniform(-4, 0, (n, 3)),
+                          quats=rng.normal(size=(n, 4)), opacities=rng.normal(size=n),
+                          sh_dc=rng.normal(size=(n, 3)), sh_rest=np.zeros((n, 0, 3)))
+    work = tmp_path_factory.mktemp("blocks")
+    original = blocks.SAMPLE_ROWS
+    blocks.SAMPLE_ROWS = sample
+    try:
+        parts = partition(LoadedScene(cloud), work, {"n": n}, leaf, branching, chunk_rows=97,
+                          block=min(block, n - 1))
+    finally:
+        blocks.SAMPLE_ROWS = original
+    rows = cloud_to_rows(cloud)
+    spilled = [np.load(leaf_path(work, node.id)) for node in parts.leaves]
+    assert np.array_equal(sorted_rows(np.concatenate(spilled)), sorted_rows(rows))
+    assert all(0 < len(s) <= leaf for s in spilled)
+    assert [len(s) for s in spilled] == [node.count for node in parts.leaves]
+    for part in spilled:  # in input order: the rows' positions in the input ascend
+        where = [int(np.flatnonzero((rows == r).all(axis=1))[0]) for r in part[:5]]
+        assert where == sorted(where) or duplicates
+    assert parts.nodes["n"].count == n
+    for node in parts.nodes.values():
+        if node.children:
+            assert 0 < len(node.children) <= branching
+            assert all(c[:-1] == node.id and parts.nodes[c] for c in node.children)
+            assert sum(parts.nodes[c].count for c in node.children) == node.count
+    assert not (work / "blocks").exists()
+
+
+def test_a_scene_within_one_block_is_cut_exactly_as_before(scene_ply, tmp_path):
+    source = open_source(scene_ply)
+    exact = partition(source, tmp_path / "a", {"k": 1}, 400, 4, chunk_rows=257)
+    same = partition(source, tmp_path / "b", {"k": 1}, 400, 4, chunk_rows=257, block=source.count)
+    assert [(n.id, n.count, n.children, n.leaf_digest) for n in exact.nodes.values()] == \
+        [(n.id, n.count, n.children, n.leaf_digest) for n in same.nodes.values()]
+    cut = partition(source, tmp_path / "c", {"k": 1}, 400, 4, chunk_rows=257, block=500)
+    assert sorted(n.id for n in cut.leaves) != [] and all(n.count <= 400 for n in cut.leaves)
 
 
 # ------------------------------------------------------------------------------- merge

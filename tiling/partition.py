@@ -1,7 +1,9 @@
 """Partition a scene into spatial leaves in two passes over the input.
 
-Pass 1 reads centres only (12 bytes per Gaussian) and builds a k-d tree that splits at medians;
-pass 2 streams the scene in chunks and spills every Gaussian's row to its leaf's ``.npy`` file.
+Pass 1 reads centres only (12 bytes per Gaussian, 48 while the tree is built) and builds a k-d
+tree that splits at medians; pass 2 streams the scene in chunks and spills every Gaussian's row to
+its leaf's ``.npy`` file. A scene larger than a block is cut through blocks instead
+(:mod:`.blocks`), so that memory follows the block and not the scene.
 
 Why a median k-d tree and not an octree: a median split halves the count whatever the density,
 so every leaf holds between ``leaf_size / branching`` and ``leaf_size`` Gaussians and the depth is
@@ -113,17 +115,49 @@ def leaf_path(work: Path, node_id: str) -> Path:
 
 
 def partition(source: SceneSource, work: Path, identity: dict, leaf_size: int, branching: int,
-              chunk_rows: int, progress: ProgressFactory | None = None) -> Partition:
+              chunk_rows: int, progress: ProgressFactory | None = None,
+              block: int | None = None) -> Partition:
     """Both passes, or the partition already in ``work`` when it was made from the same input
     with the same settings (``identity``). ``progress`` gets a stage per pass, counted in chunks
-    read (and one for the leaves' digests), as each takes minutes at 20 M Gaussians."""
+    read (and one for the leaves' digests), as each takes minutes at 20 M Gaussians.
+
+    A scene of more than ``block`` rows (None: :func:`.blocks.block_rows`, 5 M at SH degree 0)
+    is cut through blocks (:mod:`.blocks`), so the peak memory follows the block and not the
+    scene; a smaller one exactly, all its centres in memory."""
     from spcodec.encoder.stages import silent
+
+    from .blocks import block_rows, partition_in_blocks
 
     progress = progress or silent
     previous = load_partition(work, identity)
     if previous is not None:
         return previous
     (work / PARTITION_FILE).unlink(missing_ok=True)  # written again once the spill is complete
+    limit = block_rows(source.sh_degree, leaf_size) if block is None else block
+    if source.count > limit:
+        if (work / "leaves").is_dir():  # another partition's leaves: none may be mistaken for ours
+            shutil.rmtree(work / "leaves")
+        nodes, leaves = partition_in_blocks(source, work, leaf_size, branching, chunk_rows, limit,
+                                            progress)
+    else:
+        nodes, leaves = _partition_exactly(source, work, leaf_size, branching, chunk_rows,
+                                           progress)
+    stage = progress(f"digest {len(leaves)} leaves", len(leaves))
+    for node_id in leaves:
+        nodes[node_id].leaf_digest = file_digest(leaf_path(work, node_id))
+        stage.update()
+    stage.done("done")
+    result = Partition(nodes, source.sh_degree, identity)
+    doc = {"identity": identity, "sh_degree": source.sh_degree,
+           "nodes": [asdict(n) for n in nodes.values()]}
+    atomic_write(work / PARTITION_FILE, json.dumps(doc).encode())  # last: marks the spill done
+    return result
+
+
+def _partition_exactly(source: SceneSource, work: Path, leaf_size: int, branching: int,
+                       chunk_rows: int, progress: ProgressFactory) -> tuple[dict[str, TreeNode],
+                                                                            list[str]]:
+    """Pass 1 reads every centre and builds the tree; pass 2 spills the rows to the leaves."""
     chunks = -(-source.count // chunk_rows)
     stage = progress(f"partition pass 1 of 2: read {source.count:,} centres", chunks)
     points = source.all_positions(chunk_rows, stage.update)        # pass 1: centres only
@@ -133,16 +167,7 @@ def partition(source: SceneSource, work: Path, identity: dict, leaf_size: int, b
     stage = progress(f"partition pass 2 of 2: spill rows to {len(leaf_rows)} leaves", chunks)
     spill(source, work, leaf_rows, chunk_rows, stage.update)       # pass 2: whole rows
     stage.done(f"{source.count:,} rows spilled")
-    stage = progress(f"digest {len(leaf_rows)} leaves", len(leaf_rows))
-    for node_id in leaf_rows:
-        nodes[node_id].leaf_digest = file_digest(leaf_path(work, node_id))
-        stage.update()
-    stage.done("done")
-    result = Partition(nodes, source.sh_degree, identity)
-    doc = {"identity": identity, "sh_degree": source.sh_degree,
-           "nodes": [asdict(n) for n in nodes.values()]}
-    atomic_write(work / PARTITION_FILE, json.dumps(doc).encode())  # last: marks the spill done
-    return result
+    return nodes, list(leaf_rows)
 
 
 def spill(source: SceneSource, work: Path, leaf_rows: dict[str, np.ndarray],

@@ -278,6 +278,30 @@ def test_a_scene_within_one_block_is_cut_exactly_as_before(scene_ply, tmp_path):
     assert sorted(n.id for n in cut.leaves) != [] and all(n.count <= 400 for n in cut.leaves)
 
 
+def test_a_tileset_built_through_blocks_holds_the_scene_and_decodes(scene_ply, tmp_path, monkeypatch):
+    """The whole build when the scene is larger than a block (blocks of 900 here): the index
+    names every node, each decodes, and the leaves hold every input Gaussian once."""
+    from spcodec.tiling import blocks
+
+    monkeypatch.setattr(blocks, "block_rows", lambda sh_degree, leaf_size: 900)
+    recorder = Recorder()
+    summary = build_tileset(scene_ply, tmp_path, TilingConfig(leaf_size=LEAF, workers=0), recorder)
+    assert [s.name.split(":")[0] for s in recorder.stages] == [
+        "partition", "partition pass 1 of 2", "partition pass 2 of 2",
+        f"digest {summary.leaves} leaves", f"encode {summary.nodes} nodes"]
+    assert "route" in recorder.stages[1].name and "blocks into leaves" in recorder.stages[2].name
+    for stage in recorder.stages:  # each counted to its total, and closed
+        assert stage.total and stage.count == stage.total and stage.summary is not None
+    index = read_tileset(tmp_path / "tileset.json")
+    nodes = list(tiles(index["root"]))
+    assert len(nodes) == summary.nodes and not (tmp_path / "work").exists()
+    decoded = {t["content"]["uri"]: decode((tmp_path / t["content"]["uri"]).read_bytes())
+               for t in nodes}
+    leaves = [decoded[t["content"]["uri"]] for t in nodes if not t.get("children")]
+    assert sum(len(c) for c in leaves) == len(read_ply(scene_ply))
+    assert all(len(c) <= LEAF for c in leaves)
+
+
 # ------------------------------------------------------------------------------- merge
 @st.composite
 def clouds(draw):

@@ -13,6 +13,7 @@ with two million samples); every tile below them is cut exactly, at most ``leaf_
 from __future__ import annotations
 
 import os
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Iterator
@@ -135,9 +136,8 @@ def partition_in_blocks(source: SceneSource, work: Path, leaf_size: int, branchi
     blocks = list(top.blocks())
     stage.done(f"{len(blocks)} blocks of about {limit:,} Gaussians at most")
     folder = work / "blocks"
-    folder.mkdir(parents=True, exist_ok=True)
-    for block in blocks:  # a file of an interrupted run: never appended to
-        (folder / f"{block.id}.f32").unlink(missing_ok=True)
+    shutil.rmtree(folder, ignore_errors=True)  # an interrupted run's files: never appended to
+    folder.mkdir(parents=True)
     stage = progress(f"partition pass 1 of 2: route {source.count:,} rows to {len(blocks)} blocks",
                      chunks)
     for _, cloud in source.chunks(chunk_rows):

@@ -1,7 +1,7 @@
 """A scene too large to partition in memory: its top levels cut at the medians of a sample, its
 rows routed to blocks on disk, and each block then partitioned exactly (docs/LOG.md 32.4).
 
-The exact partition (:func:`.partition.build_tree`) holds every centre, its row number and, while
+The exact partition (:func:`.kdtree.build_tree`) holds every centre, its row number and, while
 the root is split, copies of both: about 48 bytes a Gaussian, 4 GB at 85 M. Here the tiles above
 blocks of at most ``limit`` rows are split at the medians of a strided sample of the centres and
 kept as planes; pass 1 streams whole rows through the planes into one file per block, and pass 2
@@ -20,10 +20,10 @@ from typing import TYPE_CHECKING, Callable, Iterator
 
 import numpy as np
 
+from .kdtree import TreeNode, build_tree, leaf_path
 from .rows import cloud_to_rows, row_width
 
 if TYPE_CHECKING:
-    from .partition import TreeNode
     from .source import SceneSource
 
 SAMPLE_ROWS = 1 << 21
@@ -60,7 +60,7 @@ class Cut:
 
 def plan_cuts(points: np.ndarray, node_id: str, limit: float, branching: int,
               per_sample: float) -> Cut:
-    """The tiles above blocks of at most ``limit`` rows, split as :func:`.partition.split_into`
+    """The tiles above blocks of at most ``limit`` rows, split as :func:`.kdtree.split_into`
     splits (halves of halves, each across the longest side of its part's box) at the medians of
     ``points``, a sample of which each row stands for ``per_sample`` rows of the scene."""
     cut = Cut(node_id)
@@ -123,11 +123,9 @@ def partition_in_blocks(source: SceneSource, work: Path, leaf_size: int, branchi
                         chunk_rows: int, limit: int, progress, sample_rows: int = SAMPLE_ROWS,
                         ) -> tuple[dict[str, TreeNode], list[str]]:
     """The tree of ``source`` (nodes by id) and its leaves' ids, each leaf's rows spilled to
-    :func:`.partition.leaf_path` in input order, cut through blocks of at most about ``limit``
+    :func:`.kdtree.leaf_path` in input order, cut through blocks of at most about ``limit``
     rows. A block no row reached is left out of its parent (only a scene of many equal centres
     can leave one empty)."""
-    from .partition import build_tree, leaf_path
-
     chunks = -(-source.count // chunk_rows)
     stage = progress(f"partition: sample {min(source.count, sample_rows):,} centres", chunks)
     points, per_sample = sample_centres(source, sample_rows, chunk_rows, stage.update)
@@ -177,8 +175,6 @@ def partition_in_blocks(source: SceneSource, work: Path, leaf_size: int, branchi
 def _add_cuts(cut: Cut, nodes: dict[str, TreeNode]) -> int:
     """The tiles above the blocks added to ``nodes``, counted from their blocks; returns the
     rows under ``cut`` (0 for a block no row reached, which its parent leaves out)."""
-    from .partition import TreeNode
-
     if not cut.children:
         return nodes[cut.id].count if cut.id in nodes else 0
     counts = [_add_cuts(child, nodes) for child in cut.children]

@@ -120,13 +120,14 @@ def sample_centres(source: SceneSource, count: int, chunk_rows: int,
 
 
 def partition_in_blocks(source: SceneSource, work: Path, leaf_size: int, branching: int,
-                        chunk_rows: int, limit: int, progress, sample_rows: int = SAMPLE_ROWS,
+                        chunk_rows: int, limit: int, progress, sample_rows: int | None = None,
                         ) -> tuple[dict[str, TreeNode], list[str]]:
     """The tree of ``source`` (nodes by id) and its leaves' ids, each leaf's rows spilled to
     :func:`.kdtree.leaf_path` in input order, cut through blocks of at most about ``limit``
     rows. A block no row reached is left out of its parent (only a scene of many equal centres
     can leave one empty)."""
     chunks = -(-source.count // chunk_rows)
+    sample_rows = SAMPLE_ROWS if sample_rows is None else sample_rows
     stage = progress(f"partition: sample {min(source.count, sample_rows):,} centres", chunks)
     points, per_sample = sample_centres(source, sample_rows, chunk_rows, stage.update)
     top = plan_cuts(points, "n", limit, branching, per_sample)

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Callable, Iterator
 
 import numpy as np
 
-from .kdtree import TreeNode, build_tree, leaf_path
+from .kdtree import TreeNode, build_tree, fresh_leaves, leaf_path, longest_axis
 from .rows import cloud_to_rows, row_width
 
 if TYPE_CHECKING:
@@ -74,7 +74,7 @@ def plan_cuts(points: np.ndarray, node_id: str, limit: float, branching: int,
                 cut.planes[bits] = (0, float("inf"))
                 halves += [(bits + "0", part), (bits + "1", part[:0])]
                 continue
-            axis = int(np.argmax(part.max(axis=0) - part.min(axis=0)))
+            axis = longest_axis(part)
             coords = part[:, axis]
             threshold = float(np.partition(coords, len(coords) // 2 - 1)[len(coords) // 2 - 1])
             cut.planes[bits] = (axis, threshold)
@@ -151,7 +151,7 @@ def partition_in_blocks(source: SceneSource, work: Path, leaf_size: int, branchi
     nodes: dict[str, TreeNode] = {}
     leaves: list[str] = []
     stage = progress(f"partition pass 2 of 2: cut {len(blocks)} blocks into leaves", len(blocks))
-    (work / "leaves").mkdir(parents=True, exist_ok=True)
+    fresh_leaves(work)
     for block in blocks:
         path = folder / f"{block.id}.f32"
         if path.is_file():

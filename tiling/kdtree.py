@@ -12,6 +12,7 @@ node count, per-node encode time and peak memory would follow the density instea
 
 from __future__ import annotations
 
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -35,11 +36,16 @@ class TreeNode:
         return not self.children
 
 
+def longest_axis(coords: np.ndarray) -> int:
+    """The axis along which the box of ``coords`` (n, 3) is longest: every split cuts across it."""
+    return int(np.argmax(coords.max(axis=0) - coords.min(axis=0)))
+
+
 def median_split(points: np.ndarray, index: np.ndarray, left: int) -> tuple[np.ndarray, np.ndarray]:
     """``index`` cut in two across the longest side of its points' box: the ``left`` rows with the
     smallest coordinates on that axis, then the rest."""
     coords = points[index]
-    axis = int(np.argmax(coords.max(axis=0) - coords.min(axis=0)))
+    axis = longest_axis(coords)
     order = np.argpartition(coords[:, axis], left - 1) if 0 < left < len(index) else \
         np.arange(len(index))
     return index[order[:left]], index[order[left:]]
@@ -75,3 +81,9 @@ def build_tree(points: np.ndarray, leaf_size: int, branching: int) -> tuple[dict
 def leaf_path(work: Path, node_id: str) -> Path:
     """Where leaf ``node_id``'s rows are spilled."""
     return work / "leaves" / f"{node_id}.npy"
+
+
+def fresh_leaves(work: Path) -> None:
+    """An empty folder for the leaves: another partition's leaves may not be mistaken for ours."""
+    shutil.rmtree(work / "leaves", ignore_errors=True)
+    (work / "leaves").mkdir(parents=True)

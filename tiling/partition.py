@@ -13,7 +13,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
@@ -22,7 +21,7 @@ import numpy as np
 
 from spcodec.fileio import atomic_write
 
-from .kdtree import TreeNode, build_tree, leaf_path
+from .kdtree import TreeNode, build_tree, fresh_leaves, leaf_path
 from .rows import cloud_to_rows, row_width
 from .source import SceneSource
 
@@ -71,8 +70,6 @@ def partition(source: SceneSource, work: Path, identity: dict, leaf_size: int, b
     (work / PARTITION_FILE).unlink(missing_ok=True)  # written again once the spill is complete
     limit = block_rows(source.sh_degree, leaf_size) if block is None else block
     if source.count > limit:
-        if (work / "leaves").is_dir():  # another partition's leaves: none may be mistaken for ours
-            shutil.rmtree(work / "leaves")
         nodes, leaves = partition_in_blocks(source, work, leaf_size, branching, chunk_rows, limit,
                                             progress)
     else:
@@ -110,9 +107,7 @@ def spill(source: SceneSource, work: Path, leaf_rows: dict[str, np.ndarray],
           chunk_rows: int, chunk_done: Callable[[], object] = lambda: None) -> None:
     """Pass 2: each chunk's rows appended to their leaves' files (each file sized in advance);
     ``chunk_done`` is called after each chunk."""
-    if (work / "leaves").is_dir():  # another partition's leaves: none may be mistaken for ours
-        shutil.rmtree(work / "leaves")
-    (work / "leaves").mkdir(parents=True)
+    fresh_leaves(work)
     owner = np.empty(source.count, np.int32)      # leaf number of every row
     names = sorted(leaf_rows)
     width = row_width(source.sh_degree)

@@ -1,6 +1,6 @@
 /**
- * Context-coded patch indices (spec 7.5, format 1.2): the PATCH_INDEX_CONTEXTS section of layer 1
- * and the rank-to-index gather it asks of every patch layer.
+ * Context-coded patch indices (spec 7.5, format 1.2): the PATCH_INDEX_CONTEXTS section of layer 1.
+ * Every patch layer's ranks are resolved where its indices are checked (patch.js `readIndices`).
  *
  * A target column stores a rank per Gaussian; its index is `table[contextIndex * E_target + rank]`,
  * columns resolved in increasing order so that a context that is itself a target is already an
@@ -68,24 +68,5 @@ export function parseContexts(raw, codebooks) {
       }
     }
   });
-  return out;
-}
-
-/**
- * The index columns of a layer from its stored columns ([R-107]): one gather per target column.
- * Returns `columns` itself when there are no records, else a resolved copy.
- * @param {Uint8Array} columns the PATCH_ATTRIBUTES payload, ranks already range-checked ([R-52])
- * @param {number} n Gaussians of the layer
- * @param {IndexContext[]} contexts
- * @returns {Uint8Array}
- */
-export function resolveRanks(columns, n, contexts) {
-  if (!contexts.length || n === 0) return columns;
-  const out = columns.slice();
-  for (const { target, context, width, table } of contexts) {
-    const ranks = out.subarray(target * n, (target + 1) * n);
-    const given = out.subarray(context * n, (context + 1) * n);
-    for (let i = 0; i < n; i++) ranks[i] = table[given[i] * width + ranks[i]];
-  }
   return out;
 }

@@ -18,8 +18,8 @@ import {
 } from './header.js';
 import { OutputLimitError } from './inflate.js';
 import { checkLimit, resolveLimits } from './limits.js';
-import { parseContexts, resolveRanks } from './contexts.js';
-import { checkIndices, fillPatch, parseCodebooks, parsePositions } from './patch.js';
+import { parseContexts } from './contexts.js';
+import { fillPatch, parseCodebooks, parsePositions, readIndices } from './patch.js';
 import { fillSketch, prepareSketch } from './sketch.js';
 
 /** A gzip header's fixed part, XLEN and the largest FEXTRA field: where `SP` offsets can be. */
@@ -194,8 +194,7 @@ class LayerDecoder {
     const { mode, positions } = parsePositions(/** @type {Uint8Array} */ (payloads.get(SectionType.PATCH_POSITIONS)),
       n, this.draco, index);
     const stored = /** @type {Uint8Array} */ (payloads.get(SectionType.PATCH_ATTRIBUTES));
-    checkIndices(stored, n, this.codebooks);
-    const indices = resolveRanks(stored, n, this.contexts);
+    const indices = readIndices(stored, n, this.codebooks, this.contexts);
     return { gaussianCount: n, mode, positions, indices };
   }
 

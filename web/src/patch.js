@@ -190,28 +190,49 @@ function decodeQuant16(raw, count, positions) {
 }
 
 /**
- * Check PATCH_ATTRIBUTES against the codebooks ([R-52]).
- * @param {Uint8Array} raw
- * @param {number} count
- * @param {Codebook[]} codebooks
+ * The index columns of a layer: PATCH_ATTRIBUTES checked against the codebooks ([R-52]), and with
+ * context records ([R-105]) the target columns' ranks resolved into indices ([R-107]) in the pass
+ * that checks them, so that a file with contexts reads each stored byte once, as one without
+ * does. Targets go in increasing order, so a context that is itself a target is already an index.
+ * Returns `raw` itself when there are no records, else a new array.
+ * @param {Uint8Array} raw the PATCH_ATTRIBUTES payload
+ * @param {number} count Gaussians of the layer
+ * @param {{attribute?: number, count: number, groups: number}[]} codebooks
+ * @param {import('./contexts.js').IndexContext[]} [contexts]
+ * @returns {Uint8Array}
  */
-export function checkIndices(raw, count, codebooks) {
+export function readIndices(raw, count, codebooks, contexts = []) {
   const groups = codebooks.reduce((sum, cb) => sum + cb.groups, 0);
   if (raw.length !== count * groups) {
     fail('bad-section', `PATCH_ATTRIBUTES holds ${raw.length} bytes, expected ${count} Gaussians x ${groups} indices`);
   }
-  let row = 0;
+  const out = contexts.length && count ? new Uint8Array(raw.length) : raw;
+  const records = new Map(contexts.map((rec) => [rec.target, rec]));
+  let column = 0;
   for (const cb of codebooks) {
-    const block = raw.subarray(row * count, (row + cb.groups) * count);
-    row += cb.groups;
-    if (cb.count < MAX_ENTRIES) {
-      for (let i = 0; i < block.length; i++) {
-        if (block[i] >= cb.count) {
-          fail('bad-value', `an attribute ${cb.attribute} index exceeds the codebook's ${cb.count} entries`);
+    const exceeds = () => fail('bad-value', `an attribute ${cb.attribute} index exceeds the codebook's ${cb.count} entries`);
+    for (let g = 0; g < cb.groups; g++, column++) {
+      const at = column * count;
+      const rec = records.get(column);
+      if (rec) {
+        const { table, width } = rec;
+        const ranks = raw.subarray(at, at + count);
+        const given = out.subarray(rec.context * count, (rec.context + 1) * count);
+        const resolved = out.subarray(at, at + count);
+        for (let i = 0; i < count; i++) {
+          const rank = ranks[i];
+          if (rank >= width) exceeds();
+          resolved[i] = table[given[i] * width + rank];
         }
+        continue;
       }
+      if (cb.count < MAX_ENTRIES) {
+        for (let i = at; i < at + count; i++) if (raw[i] >= cb.count) exceeds();
+      }
+      if (out !== raw) out.set(raw.subarray(at, at + count), at);
     }
   }
+  return out;
 }
 
 /**

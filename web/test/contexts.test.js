@@ -3,7 +3,8 @@
 
 import assert from 'node:assert/strict';
 import test from 'node:test';
-import { columnEntries, parseContexts, resolveRanks } from '../src/contexts.js';
+import { columnEntries, parseContexts } from '../src/contexts.js';
+import { readIndices } from '../src/patch.js';
 
 /** A small deterministic generator (xorshift32), so a failure names its seed. */
 function rng(seed) {
@@ -37,7 +38,9 @@ test('ranks resolve as [R-107] reads: targets in order, contexts as resolved ind
   for (let seed = 1; seed <= 300; seed++) {
     const { codebooks, n, columns, raw } = randomCase(seed);
     const records = parseContexts(raw, codebooks);
-    const got = resolveRanks(columns, n, records);
+    const stored = columns.slice();
+    const got = readIndices(columns, n, codebooks, records);
+    assert.deepEqual(columns, stored, `seed ${seed}: the stored columns are read, not written`);
     const want = Array.from(columns);
     for (const rec of records) {
       for (let i = 0; i < n; i++) {
@@ -47,6 +50,21 @@ test('ranks resolve as [R-107] reads: targets in order, contexts as resolved ind
     assert.deepEqual(Array.from(got), want, `seed ${seed}`);
     if (records.length && n) assert.notEqual(got, columns, 'the stored columns are not changed in place');
   }
+});
+
+test('a rank past its codebook is bad-value, checked in the pass that resolves it ([R-52])', () => {
+  let checked = 0;
+  for (let seed = 1; seed <= 300 && checked < 40; seed++) {
+    const { codebooks, entries, n, columns, raw } = randomCase(seed);
+    const records = parseContexts(raw, codebooks).filter((rec) => entries[rec.target] < 256);
+    if (!records.length || !n) continue;
+    const rec = records[seed % records.length];
+    const bad = columns.slice();
+    bad[rec.target * n + (seed % n)] = entries[rec.target];
+    assert.throws(() => readIndices(bad, n, codebooks, records), (err) => err.code === 'bad-value', `seed ${seed}`);
+    checked++;
+  }
+  assert.ok(checked >= 20, `only ${checked} cases had a target column below 256 entries`);
 });
 
 test('every structural defect is bad-section, a table value out of range bad-value', () => {

@@ -12,6 +12,12 @@ Odd requests get a status, never a traceback: a request target that names no fil
 open (a NUL byte, a name too long for it, a link loop, a component that is not a folder) is 404;
 one that does not parse is 400; a client that hangs up mid-reply is let go quietly.
 
+Text files (a tileset's JSON index and its external tilesets, the viewer's page and scripts) are
+sent gzip-compressed to a client that accepts it (``Accept-Encoding: gzip``) and asks for no range:
+a tileset's index is JSON of numbers and names, and compressed it is about a quarter of the bytes
+a viewer waits for before its first request for a tile. Binary files, and every range, go as they
+are.
+
 ``throttle`` paces the scene files (not the viewer's own code) to a given link speed, shared by
 every connection as one link would be, so a viewer's progress can be watched and measured as on a
 slow connection. The server binds the loopback interface unless told otherwise: it is a tool for
@@ -28,6 +34,8 @@ index, which the viewer streams by view; every other path is a file under the we
 from __future__ import annotations
 
 import errno
+import gzip
+import io
 import json
 import mimetypes
 import os
@@ -53,6 +61,10 @@ _TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript", ".mjs":
           ".json": "application/json", ".wasm": "application/wasm", ".css": "text/css",
           ".spc": "application/octet-stream", ".ply": "application/octet-stream",
           ".glb": "model/gltf-binary", ".png": "image/png", ".map": "application/json"}
+COMPRESSIBLE = frozenset({".json", ".js", ".mjs", ".html", ".css", ".map", ".txt"})
+"""Suffixes of the text files sent gzip-compressed where the client accepts it."""
+GZIP_LIMIT = 64 << 20
+"""The largest text file compressed in memory; a larger one goes as it is."""
 _RANGE = re.compile(r"^\s*([0-9]*)\s*-\s*([0-9]*)\s*$")  # ASCII digits only, as RFC 9110
 
 
@@ -245,6 +257,9 @@ class ViewerRequestHandler(BaseHTTPRequestHandler):
                 self.send_header("Content-Length", "0")
                 self.end_headers()
                 return
+            if span is None and self._gzip_wanted(path, size):
+                self._send_gzipped(handle, path, send_body, paced)
+                return
             first, last = span if span else (0, size - 1)
             length = last - first + 1 if size else 0
             self.send_response(HTTPStatus.PARTIAL_CONTENT if span else HTTPStatus.OK)
@@ -258,6 +273,23 @@ class ViewerRequestHandler(BaseHTTPRequestHandler):
             if send_body:
                 handle.seek(first)
                 self._copy(handle, length, self.config.link if paced else None)
+
+    def _gzip_wanted(self, path: Path, size: int) -> bool:
+        return (path.suffix.lower() in COMPRESSIBLE and size <= GZIP_LIMIT
+                and accepts_gzip(self.headers.get("Accept-Encoding")))
+
+    def _send_gzipped(self, handle: BinaryIO, path: Path, send_body: bool, paced: bool) -> None:
+        """The whole file compressed, for a client that accepts gzip and asked for no range."""
+        body = gzip.compress(handle.read(), compresslevel=6, mtime=0)
+        self.send_response(HTTPStatus.OK)
+        self.send_header("Content-Type", _content_type(path))
+        self.send_header("Content-Encoding", "gzip")
+        self.send_header("Vary", "Accept-Encoding")
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "no-store")
+        self.end_headers()
+        if send_body:
+            self._copy(io.BytesIO(body), len(body), self.config.link if paced else None)
 
     def _copy(self, handle: BinaryIO, length: int, link: Link | None) -> None:
         if link is None or not link.rate:
@@ -302,6 +334,23 @@ class _Limited:
         block = self.handle.read(self.remaining if size < 0 else min(size, self.remaining))
         self.remaining -= len(block)
         return block
+
+
+def accepts_gzip(header: str | None) -> bool:
+    """Whether an ``Accept-Encoding`` header names gzip with a weight above 0 (RFC 9110 12.5.3)."""
+    for part in (header or "").split(","):
+        coding, *params = [item.strip() for item in part.split(";")]
+        if coding.lower() != "gzip":
+            continue
+        for param in params:
+            key, _, value = param.partition("=")
+            if key.strip().lower() == "q":
+                try:
+                    return float(value) > 0
+                except ValueError:
+                    return False
+        return True
+    return False
 
 
 def _content_type(path: Path) -> str:

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import ast
 import fnmatch
+import gzip
 import http.client
+import json
 import shutil
 import socket
 import struct
@@ -19,7 +21,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from spcodec.cli import main
-from spcodec.cli.server import RangeNotSatisfiable, make_server, parse_range
+from spcodec.cli.server import RangeNotSatisfiable, accepts_gzip, make_server, parse_range
 from spcodec.errors import UsageError
 
 from conftest import REPO
@@ -441,3 +443,36 @@ def test_a_folder_that_is_no_tileset_fails_with_one_line(tmp_path, capsys, index
     code = main(["serve", str(folder), "--port", "0"])
     _, err = capsys.readouterr()
     assert code == 2 and err.count("\n") == 1 and message in err
+
+
+def test_a_tileset_index_goes_gzipped_to_a_client_that_accepts_it(tileset_server, tmp_path):
+    """The index is compressed only where gzip is accepted and no range is asked; the tiles (binary,
+    read by range) never are. A HEAD answers with the compressed length."""
+    index = tmp_path / "tiled" / "tileset.json"
+    children = [{"boundingVolume": {"box": [k * 0.125] * 12}, "geometricError": k / 3,
+                 "content": {"uri": f"nodes/n{k:04d}.spc"}} for k in range(200)]
+    index.write_text(json.dumps({"asset": {"version": "1.1"}, "root": {"children": children}}))
+    path = "/scenes/tiled/tileset.json"
+    response, body = request(tileset_server, path, {"Accept-Encoding": "gzip, deflate, br"})
+    assert response.status == 200 and response.getheader("Content-Encoding") == "gzip"
+    assert response.getheader("Vary") == "Accept-Encoding"
+    assert gzip.decompress(body) == index.read_bytes() and len(body) < index.stat().st_size / 3
+    assert int(response.getheader("Content-Length")) == len(body)
+    head, nothing = request(tileset_server, path, {"Accept-Encoding": "gzip"}, method="HEAD")
+    assert nothing == b"" and head.getheader("Content-Length") == str(len(body))
+    for headers in ({}, {"Accept-Encoding": "gzip;q=0"}, {"Accept-Encoding": "identity"},
+                    {"Accept-Encoding": "gzip", "Range": "bytes=0-9"}):
+        response, plain = request(tileset_server, path, headers)
+        assert response.getheader("Content-Encoding") is None, headers
+        assert plain == index.read_bytes()[:10 if "Range" in headers else None], headers
+    response, tile = request(tileset_server, "/scenes/tiled/nodes/n.spc", {"Accept-Encoding": "gzip"})
+    assert response.getheader("Content-Encoding") is None and tile == SCENE
+
+
+@pytest.mark.parametrize("header, accepted", [
+    (None, False), ("", False), ("gzip", True), ("GZIP", True), ("deflate, gzip;q=0.5", True),
+    ("gzip;q=0", False), ("gzip; q=0.0", False), ("gzip;q=x", False), ("br, identity", False),
+    ("x-gzip", False), ("gzip;level=1", True),
+])
+def test_accepts_gzip_reads_the_weights(header, accepted):
+    assert accepts_gzip(header) is accepted

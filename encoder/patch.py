@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import zlib
 from dataclasses import dataclass, field
+from typing import Sequence
 
 import numpy as np
 
@@ -19,7 +20,7 @@ from spcodec.attributes import PatchAttribute, canonical_rotation, encode_opacit
 from spcodec.cloud import GaussianCloud
 from spcodec.container import MAX_CODEBOOK_ENTRIES, Codec
 from spcodec.decoder.layers import fill_patch_attributes
-from spcodec.imaging.views import robust_bounds
+from spcodec.imaging.views import DEFAULT_UP, robust_bounds
 from spcodec.index_contexts import IndexContext
 from spcodec.sections import Codebook, PatchPositions, pack_positions
 from spcodec.writer import PatchLayer
@@ -536,11 +537,13 @@ class PatchEncoder:
             orders.append(members)
         return PatchEncoding(quantized.codebooks, layers, orders, cfg.index_contexts, self.jobs)
 
-    def measure_importance(self, cloud: GaussianCloud) -> np.ndarray:
+    def measure_importance(self, cloud: GaussianCloud,
+                           up: Sequence[float] | str = DEFAULT_UP) -> np.ndarray:
         """Importance (n,) float64 of every Gaussian of ``cloud`` by the configured measure.
 
         Pass the whole scene when the patch is part of one (sketch Gaussians occlude patch
-        Gaussians) and take the patch's rows.
+        Gaussians) and take the patch's rows. ``up``: the scene's up axis (the encode's
+        ``--up``), which places the views' orbit as a viewer's.
         """
         cfg = self.config
         if cfg.importance == "footprint" or len(cloud) == 0:
@@ -550,7 +553,7 @@ class PatchEncoder:
         from spcodec.imaging.importance import training_view_weights
 
         return training_view_weights(cloud, cfg.importance_views, cfg.importance_resolution,
-                                     seed=self.seed, jobs=self.jobs or default_jobs())
+                                     seed=self.seed, up=up, jobs=self.jobs or default_jobs())
 
     def kmeans_weights(self, importance: np.ndarray) -> np.ndarray | None:
         """k-means weights from importance: mean 1 plus the configured floor (None: unweighted)."""

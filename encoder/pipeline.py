@@ -177,7 +177,7 @@ def measure_importance(run: EncodeRun) -> np.ndarray:
     t = time.perf_counter()
     stage = run.progress("importance", None)
     importance = PatchEncoder(run.config.patch, seed=run.config.seed,
-                              jobs=run.config.n_jobs).measure_importance(run.cloud)
+                              jobs=run.config.n_jobs).measure_importance(run.cloud, run.config.up)
     stage.done(_importance_summary(run.config.patch))
     run.times["importance"] = time.perf_counter() - t
     return importance

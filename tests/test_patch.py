@@ -419,3 +419,27 @@ def test_retrained_position_bits_keep_the_robust_grid_fine_whatever_the_outliers
     if bits < DEFAULT_POSITION_BITS:
         assert box / (2 ** bits - 1) <= 1.5 * robust / (2 ** RETRAINED_POSITION_BITS - 1)
     assert retrained_position_bits(cloud(np.concatenate([scene, 2 * far]))) >= bits
+
+
+def test_importance_views_orbit_the_encodes_up_axis():
+    """The encode's ``--up`` places the importance views, as it places the search's and eval's:
+    a z-up scene measured with the default -y orbit was seen from its sides and below, and its
+    size targets pruned by that (docs/LOG.md 33.7)."""
+    from spcodec.encoder.config import EncoderConfig
+    from spcodec.encoder.pipeline import measure_importance
+    from spcodec.encoder.stages import EncodeRun, silent
+    from spcodec.imaging.importance import training_view_weights
+
+    rng = np.random.default_rng(3)
+    cloud = GaussianCloud.zeros(400, 0)
+    cloud.means[:] = rng.normal(size=(400, 3)) * (1.0, 0.3, 0.6)
+    cloud.scales[:] = np.log(0.05)
+    cloud.opacities[:] = 4.0
+    patch = PatchConfig(importance_views=3, importance_resolution=(48, 36))
+    for up in ("+z", "-y"):
+        config = EncoderConfig(patch=patch, up=up)
+        got = measure_importance(EncodeRun(cloud, config, silent))
+        np.testing.assert_array_equal(
+            got, training_view_weights(cloud, 3, (48, 36), seed=config.seed, up=up))
+    other = training_view_weights(cloud, 3, (48, 36), seed=config.seed, up="+z")
+    assert not np.array_equal(got, other)

@@ -423,7 +423,7 @@ def test_retrained_position_bits_keep_the_robust_grid_fine_whatever_the_outliers
 
 def test_importance_views_orbit_the_encodes_up_axis():
     """The encode's ``--up`` places the importance views, as it places the search's and eval's:
-    a z-up scene measured with the default -y orbit was seen from its sides and below, and its
+    a z-up scene measured with the default -y orbit was circled about the wrong axis, and its
     size targets pruned by that (docs/LOG.md 33.7)."""
     from spcodec.encoder.config import EncoderConfig
     from spcodec.encoder.pipeline import measure_importance
